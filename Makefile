@@ -1,0 +1,57 @@
+# softhand: the two commands of the README.
+#   make demo   replay a sample tracker bag through all three nodes; writes runs/<stamp>/
+#   make test   the whole test suite (unit, physics, real ROS 2 processes)
+# Each creates .venv from requirements.lock on first use (python3 + python3-venv needed).
+# ROS processes started by the demo, tests and benchmarks set ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST
+# and a ROS_DOMAIN_ID of their own in code (softhand_sim/ros_env.py); the exports below make
+# anything else started from make (e.g. `make shell`) loopback-only as well.
+
+PYTHON ?= python3
+VENV := .venv
+BIN := $(VENV)/bin
+STAMP := $(VENV)/.softhand-installed
+export ROS_AUTOMATIC_DISCOVERY_RANGE := LOCALHOST
+export ROS_DOMAIN_ID ?= 61
+unexport ROS_LOCALHOST_ONLY
+
+.PHONY: venv demo test bench bags hand colcon clean help
+
+help:
+	@echo "make demo    replay the grasp bag through tracking, sim, world and record nodes -> runs/<stamp>/"
+	@echo "make test    run the test suite"
+	@echo "make bench   solver benchmark (softhand bench)"
+	@echo "make bags    regenerate the sample tracker bags in bags/"
+	@echo "make hand    build the hand model and render docs/img/hand.png"
+	@echo "make colcon  build ros_ws with colcon into ros_ws/install"
+
+venv: $(STAMP)
+
+$(STAMP): requirements.lock softhand_sim/setup.py softhand_tracking/setup.py softhand_world/setup.py
+	@$(PYTHON) -c 'import sys; sys.exit(0 if sys.version_info[:2] == (3, 11) else 1)' || \
+	  echo "warning: softhand is tested on Python 3.11; on 3.12 pybullet has no wheel and builds from source (needs a C++ compiler and python3-dev)"
+	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
+	$(BIN)/python -m pip install --quiet --disable-pip-version-check -r requirements.lock
+	$(BIN)/python -m pip install --quiet --disable-pip-version-check --no-deps --no-build-isolation \
+	  --config-settings editable_mode=compat -e ./softhand_sim -e ./softhand_tracking -e ./softhand_world
+	touch $@
+
+demo: venv
+	$(BIN)/softhand demo $(ARGS)
+
+test: venv
+	$(BIN)/python -m pytest $(ARGS)
+
+bench: venv
+	$(BIN)/softhand bench $(ARGS)
+
+bags: venv
+	$(BIN)/python tools/make_bags.py
+
+hand: venv
+	$(BIN)/softhand hand --out docs/img/hand.png
+
+colcon: venv
+	cd ros_ws && ../$(BIN)/colcon build --base-paths src --build-base build --install-base install
+
+clean:
+	rm -rf $(VENV) ros_ws/build ros_ws/install ros_ws/log

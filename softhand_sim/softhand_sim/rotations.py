@@ -1,0 +1,227 @@
+"""Quaternion and rotation helpers shared by the hand solver, the tracking loop and the world.
+
+Quaternions are [x, y, z, w] (the ROS order), unit norm. Rotation vectors (axis * angle) are the
+exponential coordinates used for angular velocities and for Eq. 14's relative rotation.
+Every function works on single float64 arrays and is numba-compiled so kernels can call it.
+"""
+import numpy as np
+from numba import njit
+
+_SMALL_ANGLE = 1e-8  # below this angle [rad] the series forms of exp/log are exact to fp64
+
+
+@njit(cache=True)
+def quat_mul(a, b):
+    """Hamilton product a * b (apply b first, then a)."""
+    ax, ay, az, aw = a[0], a[1], a[2], a[3]
+    bx, by, bz, bw = b[0], b[1], b[2], b[3]
+    out = np.empty(4)
+    out[0] = aw * bx + ax * bw + ay * bz - az * by
+    out[1] = aw * by - ax * bz + ay * bw + az * bx
+    out[2] = aw * bz + ax * by - ay * bx + az * bw
+    out[3] = aw * bw - ax * bx - ay * by - az * bz
+    return out
+
+
+@njit(cache=True)
+def quat_conj(q):
+    out = np.empty(4)
+    out[0] = -q[0]
+    out[1] = -q[1]
+    out[2] = -q[2]
+    out[3] = q[3]
+    return out
+
+
+@njit(cache=True)
+def quat_normalize(q):
+    n = np.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
+    if n == 0.0:
+        out = np.zeros(4)
+        out[3] = 1.0
+        return out
+    return q / n
+
+
+@njit(cache=True)
+def quat_to_matrix(q):
+    x, y, z, w = q[0], q[1], q[2], q[3]
+    m = np.empty((3, 3))
+    m[0, 0] = 1.0 - 2.0 * (y * y + z * z)
+    m[0, 1] = 2.0 * (x * y - z * w)
+    m[0, 2] = 2.0 * (x * z + y * w)
+    m[1, 0] = 2.0 * (x * y + z * w)
+    m[1, 1] = 1.0 - 2.0 * (x * x + z * z)
+    m[1, 2] = 2.0 * (y * z - x * w)
+    m[2, 0] = 2.0 * (x * z - y * w)
+    m[2, 1] = 2.0 * (y * z + x * w)
+    m[2, 2] = 1.0 - 2.0 * (x * x + y * y)
+    return m
+
+
+@njit(cache=True)
+def matrix_to_quat(m):
+    """Rotation matrix -> unit quaternion (Shepperd's method, stable for every rotation)."""
+    out = np.empty(4)
+    tr = m[0, 0] + m[1, 1] + m[2, 2]
+    if tr > 0.0:
+        s = np.sqrt(tr + 1.0) * 2.0
+        out[3] = 0.25 * s
+        out[0] = (m[2, 1] - m[1, 2]) / s
+        out[1] = (m[0, 2] - m[2, 0]) / s
+        out[2] = (m[1, 0] - m[0, 1]) / s
+    elif m[0, 0] > m[1, 1] and m[0, 0] > m[2, 2]:
+        s = np.sqrt(1.0 + m[0, 0] - m[1, 1] - m[2, 2]) * 2.0
+        out[3] = (m[2, 1] - m[1, 2]) / s
+        out[0] = 0.25 * s
+        out[1] = (m[0, 1] + m[1, 0]) / s
+        out[2] = (m[0, 2] + m[2, 0]) / s
+    elif m[1, 1] > m[2, 2]:
+        s = np.sqrt(1.0 + m[1, 1] - m[0, 0] - m[2, 2]) * 2.0
+        out[3] = (m[0, 2] - m[2, 0]) / s
+        out[0] = (m[0, 1] + m[1, 0]) / s
+        out[1] = 0.25 * s
+        out[2] = (m[1, 2] + m[2, 1]) / s
+    else:
+        s = np.sqrt(1.0 + m[2, 2] - m[0, 0] - m[1, 1]) * 2.0
+        out[3] = (m[1, 0] - m[0, 1]) / s
+        out[0] = (m[0, 2] + m[2, 0]) / s
+        out[1] = (m[1, 2] + m[2, 1]) / s
+        out[2] = 0.25 * s
+    if out[3] < 0.0:
+        out = -out
+    return quat_normalize(out)
+
+
+@njit(cache=True)
+def quat_rotate(q, v):
+    """Rotate vector v by q."""
+    return quat_to_matrix(q) @ v
+
+
+@njit(cache=True)
+def quat_exp(rotvec):
+    """Rotation vector (axis * angle) [rad] -> quaternion."""
+    angle = np.sqrt(rotvec[0] ** 2 + rotvec[1] ** 2 + rotvec[2] ** 2)
+    out = np.empty(4)
+    if angle < _SMALL_ANGLE:
+        out[0] = 0.5 * rotvec[0]
+        out[1] = 0.5 * rotvec[1]
+        out[2] = 0.5 * rotvec[2]
+        out[3] = 1.0
+        return quat_normalize(out)
+    s = np.sin(0.5 * angle) / angle
+    out[0] = s * rotvec[0]
+    out[1] = s * rotvec[1]
+    out[2] = s * rotvec[2]
+    out[3] = np.cos(0.5 * angle)
+    return out
+
+
+@njit(cache=True)
+def quat_log(q):
+    """Quaternion -> rotation vector with angle in [0, pi] (shortest arc)."""
+    x, y, z, w = q[0], q[1], q[2], q[3]
+    if w < 0.0:
+        x, y, z, w = -x, -y, -z, -w
+    s = np.sqrt(x * x + y * y + z * z)
+    out = np.empty(3)
+    if s < _SMALL_ANGLE:
+        out[0] = 2.0 * x
+        out[1] = 2.0 * y
+        out[2] = 2.0 * z
+        return out
+    angle = 2.0 * np.arctan2(s, w)
+    out[0] = angle * x / s
+    out[1] = angle * y / s
+    out[2] = angle * z / s
+    return out
+
+
+@njit(cache=True)
+def integrate_rotation(q, omega_world, dt):
+    """Advance orientation q by world-frame angular velocity omega over dt: exp(dt*omega) * q."""
+    return quat_normalize(quat_mul(quat_exp(omega_world * dt), q))
+
+
+@njit(cache=True)
+def relative_rotvec(qa, qb):
+    """Rotation vector of qa * qb^-1 in world coordinates: the Δθ of Eq. 14 taking b onto a."""
+    return quat_log(quat_mul(qa, quat_conj(qb)))
+
+
+@njit(cache=True)
+def skew(v):
+    m = np.zeros((3, 3))
+    m[0, 1] = -v[2]
+    m[0, 2] = v[1]
+    m[1, 0] = v[2]
+    m[1, 2] = -v[0]
+    m[2, 0] = -v[1]
+    m[2, 1] = v[0]
+    return m
+
+
+def quat_from_axes(x_axis, z_hint):
+    """Quaternion of the frame whose x is `x_axis` and whose z is `z_hint` made orthogonal to x.
+
+    y = z × x (a right-handed frame), as the bone frames of INTERFACE.md are defined. Plain
+    numpy (not jitted): used when building frames from tracker joints and hand measures.
+    """
+    x = np.asarray(x_axis, dtype=np.float64)
+    x = x / np.linalg.norm(x)
+    z = np.asarray(z_hint, dtype=np.float64)
+    z = z - np.dot(z, x) * x
+    z = z / np.linalg.norm(z)
+    y = np.cross(z, x)
+    return matrix_to_quat(np.column_stack((x, y, z)))
+
+
+@njit(cache=True)
+def so3_left_jacobian_inv(phi):
+    """Inverse left Jacobian of SO(3): log(exp(d) exp(phi)) = phi + J_l^-1(phi) d + O(d^2).
+
+    J_l^-1 = I - 1/2 [phi]x + c [phi]x^2, c = 1/t^2 - (1 + cos t) / (2 t sin t), t = |phi|
+    (c -> 1/12 for small t). The right one is J_r^-1(phi) = J_l^-1(-phi).
+    """
+    t2 = phi[0] * phi[0] + phi[1] * phi[1] + phi[2] * phi[2]
+    t = np.sqrt(t2)
+    if t < 1e-4:
+        c = 1.0 / 12.0 + t2 / 720.0
+    else:
+        c = 1.0 / t2 - (1.0 + np.cos(t)) / (2.0 * t * np.sin(t))
+    k = skew(phi)
+    return np.eye(3) - 0.5 * k + c * (k @ k)
+
+
+@njit(cache=True)
+def polar_rotation_update(F, q, iterations):
+    """Rotation part of F by Mueller et al. 2016 ("A robust method to extract the rotational part
+    of deformations"), warm-started from q [x,y,z,w]; returns the improved unit quaternion.
+
+    Maximises tr(R^T F) over proper rotations, so for an inverted F it returns the polar rotation
+    with the smallest singular value's sign flipped (never a reflection).
+    """
+    for _ in range(iterations):
+        R = quat_to_matrix(q)
+        wx = 0.0
+        wy = 0.0
+        wz = 0.0
+        den = 0.0
+        for c in range(3):
+            rx, ry, rz = R[0, c], R[1, c], R[2, c]
+            ax, ay, az = F[0, c], F[1, c], F[2, c]
+            wx += ry * az - rz * ay
+            wy += rz * ax - rx * az
+            wz += rx * ay - ry * ax
+            den += rx * ax + ry * ay + rz * az
+        s = 1.0 / (abs(den) + 1e-9)
+        w = np.empty(3)
+        w[0] = wx * s
+        w[1] = wy * s
+        w[2] = wz * s
+        angle = np.sqrt(w[0] * w[0] + w[1] * w[1] + w[2] * w[2])
+        if angle < 1e-12:
+            break
+        q = quat_normalize(quat_mul(quat_exp(w), q))
+    return q

@@ -1,0 +1,34 @@
+"""Shared fixtures. Every ROS process a test starts gets loopback-only discovery and its own domain."""
+import os
+import sys
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO / "tests"))
+
+from softhand_sim.ros_env import apply_isolated_env, isolated_env  # noqa: E402
+
+# The test process itself may start rclpy (in-process subscribers that watch the nodes): give it
+# an isolated domain before anything imports rclpy.
+apply_isolated_env()
+
+
+@pytest.fixture
+def ros_env():
+    """Environment for subprocesses of one test: LOCALHOST discovery and a fresh ROS_DOMAIN_ID.
+
+    The test process itself is moved to the same domain so that in-process listeners hear them.
+    """
+    env = isolated_env()
+    old = os.environ.get("ROS_DOMAIN_ID")
+    os.environ["ROS_DOMAIN_ID"] = env["ROS_DOMAIN_ID"]
+    yield env
+    if old is not None:
+        os.environ["ROS_DOMAIN_ID"] = old
+
+
+@pytest.fixture(scope="session")
+def repo_root():
+    return REPO

@@ -1,0 +1,37 @@
+"""Write requirements.lock from the current venv (pip freeze), keeping only PyPI distribution names.
+
+The ros-jazzy-* wheels unpack further distributions under their ROS names (rclpy, geometry_msgs,
+...) that are not the PyPI packages of those names; pinning them would pull the wrong packages.
+Those are dropped: their `ros-*` wheel of the same version is pinned instead.
+Usage: .venv/bin/python tools/lock.py > requirements.lock
+"""
+import re
+import subprocess
+import sys
+
+HEADER = """\
+# Pinned dependencies of softhand, Python 3.11 (pip install -r requirements.lock).
+# Regenerate from a working venv: .venv/bin/python tools/lock.py > requirements.lock
+# Direct dependencies: ros-jazzy-rclpy[fastrtps] ros-jazzy-common-interfaces numpy scipy numba
+# pybullet mcap mcap-ros2-support rosbags pyyaml scikit-image trimesh manifold3d fast-simplification
+# matplotlib pytest pytest-timeout colcon-core colcon-ros ros-jazzy-ament-package setuptools wheel;
+# the rest are their dependencies.
+"""
+
+
+def norm(name):
+    return re.sub(r"[-_.]+", "-", name).lower()
+
+
+def main():
+    lines = subprocess.run([sys.executable, "-m", "pip", "freeze", "--all", "--exclude-editable"],
+                           capture_output=True, text=True, check=True).stdout.split()
+    pins = [ln for ln in lines if "==" in ln and not ln.startswith("-e")]
+    names = {norm(p.split("==")[0]) for p in pins}
+    keep = [p for p in pins if "ros-" + norm(p.split("==")[0]) not in names
+            and norm(p.split("==")[0]) not in ("pip",)]
+    sys.stdout.write(HEADER + "\n".join(sorted(keep, key=str.lower)) + "\n")
+
+
+if __name__ == "__main__":
+    main()
