@@ -71,6 +71,7 @@ SIM = {
     "tracking_ktheta": P(float, "N*m/rad", f"angular coupling to the intermediate bones, Eq. 14 ({_PAPER}: 200)", positive=True),
     "object_kx": P(float, "N/m", f"hand<->engine object linear coupling, Eq. 14 ({_PAPER}: 170)", positive=True),
     "object_ktheta": P(float, "N*m/rad", f"hand<->engine object angular coupling, Eq. 14 ({_PAPER}: 70)", positive=True),
+    "object_max_omega": P(float, "rad/s", "cap on sqrt(k/m), sqrt(ktheta/I) of the object coupling (same as world_node's)", positive=True),
     "contact_kn": P(float, "N/m^3", "normal contact stiffness k_n of Eq. 12 per unit vertex area (not in the paper)", positive=True),
     "contact_kf": P(float, "N/m^3", "tangential (friction) stiffness k_f of Eq. 13 per unit vertex area (not in the paper)", positive=True),
     "friction": P(float, "-", f"Coulomb coefficient mu for hand contacts when the scene gives none ({_PAPER}: 0.5)", 0.0),
@@ -108,6 +109,10 @@ WORLD = {
     "coupling_kx": P(float, "N/m", "engine<->hand object coupling, linear, Eq. 14 (paper: 170)", positive=True),
     "coupling_ktheta": P(float, "N*m/rad", "engine<->hand object coupling, angular, Eq. 14 (paper: 70)", positive=True),
     "coupling_damping": P(float, "-", "damping ratio of the engine-side coupling spring (0: the paper's plain spring)", 0.0, 2.0),
+    "coupling_mode": P(str, "-", "implicit: backward-Euler coupling force (stable); explicit: the paper's plain spring at t",
+                       choices=("implicit", "explicit")),
+    "coupling_max_omega": P(float, "rad/s", "cap on sqrt(k/m) and sqrt(ktheta/I) of the coupling: keeps the copy exchange stable "
+                            "for light objects (the paper's 70 N*m/rad on a 4 cm ball is ~1200 rad/s)", positive=True),
     "copy_timeout": P(float, "s", "a hand copy older than this decouples its object", positive=True),
     "extrapolate": P(bool, "-", "extrapolate hand copies with constant acceleration (Sect. 3.7)"),
     "gravity": P(float, "m/s^2", "gravity along -z", 0.0),
