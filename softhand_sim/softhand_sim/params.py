@@ -80,7 +80,7 @@ SIM = {
     "gravity_objects": P(bool, "-", "apply gravity to the hand-side object instances"),
     "cg_tolerance": P(float, "-", "relative residual tolerance of PCG (paper: 1e-5)", 1e-12, 1e-1),
     "cg_max_iterations": P(int, "-", "PCG iteration cap: bounds the cost of a step", 1, 100000),
-    "preconditioner": P(str, "-", "jacobi (the paper's) or the faster default", choices=("jacobi", "block_jacobi", "cholesky")),
+    "preconditioner": P(str, "-", "PCG preconditioner: jacobi (the paper's), block_jacobi (3x3 node, 6x6 body blocks) or factor (sparse factorization reused across steps)", choices=("jacobi", "block_jacobi", "factor")),
     "scene_file": P(str, "-", "scene file (empty: config/scene.yaml)"),
     "copy_timeout": P(float, "s", "an engine copy older than this decouples its object", positive=True),
     "extrapolate": P(bool, "-", "extrapolate engine copies with constant acceleration (Sect. 3.7)"),

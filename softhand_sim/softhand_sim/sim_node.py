@@ -1,0 +1,169 @@
+"""sim_node: the full soft hand simulation at a fixed rate (paper Sect. 3.1–3.5), thin over SimRuntime.
+
+Subscribes /hand/intermediate_bones (bone targets, Sect. 3.6) and /world/object_states (engine
+copies, Sect. 3.7). Publishes /hand/bones, /hand/object_states, /hand/skin_vertices,
+/hand/skin_mesh (once, transient local), /hand/skin_marker, /hand/contacts, /diagnostics.
+All physics lives in softhand_sim.sim_runtime; this file converts messages and owns timers.
+"""
+from __future__ import annotations
+
+import argparse
+import time
+
+import numpy as np
+from geometry_msgs.msg import PoseArray
+from rclpy.node import Node
+from sensor_msgs.msg import PointCloud2
+from shape_msgs.msg import Mesh
+from trajectory_msgs.msg import MultiDOFJointTrajectory
+from visualization_msgs.msg import Marker
+
+from . import ros_msgs as rm
+from .params import ParamError
+from .ros_common import LATCHED_QOS, LATEST_QOS, PUB_QOS, DiagnosticsPublisher, RateMeter, fail, run_node, split_cli
+from .ros_params import declare_node_params
+
+NODE_NAME = "sim_node"
+REJECT_LOG_PERIOD = 2.0  # [s] at most one log line per rejection reason per period
+
+
+def build_parser():
+    return argparse.ArgumentParser(
+        prog="sim_node",
+        description="softhand full simulation: skeleton + nonlinear FEM tissue + SDF contact + grasped "
+                    "objects, one Newton step and PCG per step at sim_rate. Subscribes "
+                    "/hand/intermediate_bones and /world/object_states; publishes /hand/bones, "
+                    "/hand/object_states, /hand/skin_vertices, /hand/skin_mesh, /hand/skin_marker, "
+                    "/hand/contacts and /diagnostics. Parameters (defaults in config/softhand.yaml, "
+                    "list with `softhand params sim_node`) are set with --ros-args -p key:=value or "
+                    "--params-file FILE.",
+        epilog="example: softhand-sim --ros-args -p sim_rate:=60.0 -p mesh:=coarse",
+    )
+
+
+class SimNode(Node):
+    """Thin rclpy node over SimRuntime."""
+
+    def __init__(self):
+        super().__init__(NODE_NAME)
+        try:
+            self.params = declare_node_params(self, NODE_NAME)
+        except ParamError as exc:
+            fail(str(exc))
+        from .sim_runtime import SimRuntime  # heavy: numba kernels, hand model
+
+        log = self.get_logger()
+        log.info("building the hand model and solver (cached after the first run)...")
+        t0 = time.monotonic()
+        try:
+            self.runtime = SimRuntime(self.params)
+        except (ParamError, ValueError, FileNotFoundError) as exc:
+            fail(str(exc))
+        log.info(f"ready in {time.monotonic() - t0:.1f} s: {self.runtime.describe()}")
+        self.dt = 1.0 / self.params["sim_rate"]
+        self.rejected = {}
+        self._last_reject_log = {}
+        self.meter = RateMeter()
+        self.step_ms = []
+        self.cg_iters = []
+        self.overruns = 0
+        self.pub_bones = self.create_publisher(PoseArray, "/hand/bones", PUB_QOS)
+        self.pub_objects = self.create_publisher(MultiDOFJointTrajectory, "/hand/object_states", PUB_QOS)
+        self.pub_skin = self.create_publisher(PointCloud2, "/hand/skin_vertices", PUB_QOS)
+        self.pub_mesh = self.create_publisher(Mesh, "/hand/skin_mesh", LATCHED_QOS)
+        self.pub_marker = self.create_publisher(Marker, "/hand/skin_marker", PUB_QOS)
+        self.pub_contacts = self.create_publisher(PointCloud2, "/hand/contacts", PUB_QOS)
+        self.create_subscription(PoseArray, "/hand/intermediate_bones", self.on_bones, LATEST_QOS)
+        self.create_subscription(MultiDOFJointTrajectory, "/world/object_states", self.on_objects, LATEST_QOS)
+        verts, tris = self.runtime.skin_rest_mesh()
+        self.pub_mesh.publish(rm.mesh_from_numpy(verts, tris))
+        self.diag = DiagnosticsPublisher(self, self.collect_diagnostics, 1.0 / self.params["diagnostics_rate"])
+        self.timer = self.create_timer(self.dt, self.on_timer)
+        self.marker_period = 1.0 / self.params["skin_marker_rate"]
+        self.last_marker = -np.inf
+
+    # -------------------------------------------------------------------- inputs
+    def reject(self, reason, detail):
+        self.rejected[reason] = self.rejected.get(reason, 0) + 1
+        now = time.monotonic()
+        if now - self._last_reject_log.get(reason, -np.inf) > REJECT_LOG_PERIOD:
+            self._last_reject_log[reason] = now
+            self.get_logger().warning(f"rejected {reason}: {detail} (total {self.rejected[reason]})")
+
+    def on_bones(self, msg):
+        try:
+            poses = rm.pose_array_to_numpy(msg)
+            self.runtime.set_bone_targets(poses, rm.stamp_to_seconds(msg.header.stamp))
+        except ValueError as exc:
+            self.reject("intermediate_bones", exc)
+
+    def on_objects(self, msg):
+        try:
+            names, poses, twists, accels, stamp = rm.object_states_to_numpy(msg)
+            errors = self.runtime.set_object_copies(names, poses, twists, accels, self.now_s())
+            for e in errors:
+                self.reject("object_states", e)
+        except ValueError as exc:
+            self.reject("object_states", exc)
+
+    def now_s(self):
+        return self.get_clock().now().nanoseconds * 1e-9
+
+    # -------------------------------------------------------------------- the step
+    def on_timer(self):
+        t = self.now_s()
+        t0 = time.perf_counter()
+        out = self.runtime.step(self.dt, t)
+        elapsed = time.perf_counter() - t0
+        if out is None:  # no bone targets yet: nothing to simulate
+            return
+        self.meter.tick()
+        self.step_ms.append(1e3 * elapsed)
+        self.cg_iters.append(out.stats.cg_iters)
+        if elapsed > self.dt:
+            self.overruns += 1
+        stamp = self.get_clock().now().to_msg()
+        self.pub_bones.publish(rm.pose_array_from_numpy(out.bone_poses, stamp))
+        if len(out.object_names):
+            self.pub_objects.publish(rm.object_states_from_numpy(
+                out.object_names, out.object_poses, out.object_twists, out.object_accels, stamp))
+        if self.params["publish_skin_vertices"]:
+            self.pub_skin.publish(rm.xyz_cloud_from_numpy(out.skin_vertices, stamp))
+        c = out.contacts
+        self.pub_contacts.publish(rm.contacts_cloud_from_numpy(
+            c["points"], c["normals"], c["forces"], c["objects"], c["slip"], stamp))
+        if t - self.last_marker >= self.marker_period - 1e-6:
+            self.last_marker = t
+            verts, tris = self.runtime.display_mesh(out)
+            self.pub_marker.publish(rm.triangle_marker(verts, tris, stamp))
+        if out.warning:
+            self.get_logger().warning(out.warning, throttle_duration_sec=2.0)
+
+    def collect_diagnostics(self):
+        steps = np.asarray(self.step_ms[-1000:])
+        iters = np.asarray(self.cg_iters[-1000:])
+        self.step_ms = self.step_ms[-1000:]
+        self.cg_iters = self.cg_iters[-1000:]
+        rate = self.meter.stats()
+        values = {
+            "sim_rate_hz": rate["rate_hz"],
+            "step_ms_p50": float(np.median(steps)) if steps.size else float("nan"),
+            "step_ms_p99": float(np.percentile(steps, 99)) if steps.size else float("nan"),
+            "cg_iters_p50": float(np.median(iters)) if iters.size else float("nan"),
+            "cg_iters_max": int(iters.max()) if iters.size else 0,
+            "overruns": self.overruns,
+            **self.runtime.diagnostics(),
+            **{f"rejected_{k}": v for k, v in self.rejected.items()},
+        }
+        level = "warn" if self.runtime.diagnostics().get("rejected_steps", 0) else "ok"
+        return values, level, "simulating" if steps.size else "waiting for /hand/intermediate_bones"
+
+
+def main(args=None):
+    parser = build_parser()
+    _, argv = split_cli(parser, args)
+    return run_node(SimNode, init_args=argv)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
