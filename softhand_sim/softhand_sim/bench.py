@@ -1,12 +1,15 @@
 """`softhand bench`: single-thread step timing of the soft-hand solver (compile time excluded).
 
-    python -m softhand_sim.bench [--scenario free|press] [--mesh coarse|fine] [--steps N]
-                                 [--preconditioner factor|block_jacobi|jacobi] [--json]
+    python -m softhand_sim.bench [--scenario free|press|grasp] [--mesh coarse|fine|box]
+                                 [--steps N] [--preconditioner factor|block_jacobi|jacobi]
+                                 [--all-preconditioners] [--json]
 
+Meshes: coarse / fine = the parametric hand model (handmodel.load_or_build_hand(resolution=...));
+box = the voxel box hand of bench_scenes (~850 tets, the paper's size; no hand builder needed).
 Scenarios live in SCENARIOS (name -> setup(solver, state) returning a per-step callback
 update(k, t)); the contact helper adds `grasp` there and may report contacts/collision columns.
-Meshes: the hand model when `softhand_sim.handmodel.load_or_build_hand` is available, else the
-voxel box hand of bench_scenes (coarse ~850 tets, fine ~8.5k).
+Timings: median and p99 of the whole step (wall clock, one thread: NUMBA_NUM_THREADS=1);
+setup = rotations + assembly (+ the preconditioner's refactorization), solve = PCG + advance.
 """
 import argparse
 import json
@@ -18,62 +21,98 @@ os.environ.setdefault("NUMBA_NUM_THREADS", "1")
 
 import numpy as np  # noqa: E402
 
+from .bench_scenes import fingertip_pad_nodes, flexed_pose  # noqa: E402
+
 PAPER_STEPS_PER_S = 55.0
-MESH_TETS = {"coarse": 850, "fine": 8500}
+MESHES = ("coarse", "fine", "box")
+PRECONDITIONERS = ("factor", "block_jacobi", "jacobi")
+BOX_TETS = 850
 DT = 0.01
+_ASSETS = {}
 
 
 def _asset(mesh):
-    from .bench_scenes import box_hand_with_tets
-    return box_hand_with_tets(MESH_TETS[mesh]), "box_hand"
+    """(asset, source) for a mesh name; cached per process."""
+    if mesh not in _ASSETS:
+        if mesh == "box":
+            from .bench_scenes import box_hand_with_tets
+            _ASSETS[mesh] = (box_hand_with_tets(BOX_TETS), "box_hand")
+        elif mesh in ("coarse", "fine"):
+            from .handmodel import load_or_build_hand
+            _ASSETS[mesh] = (load_or_build_hand(resolution=mesh), "hand_model")
+        else:
+            raise ValueError(f"mesh={mesh!r}: expected one of {MESHES}")
+    return _ASSETS[mesh]
 
 
-def _free(solver, state):
-    """Bones track an open-close cycle of the fingers (1 Hz) with a wandering palm."""
-    from .rotations import quat_exp, quat_mul
-    rest = solver.model.body_rest_pose[:16].copy()
+class _Free:
+    """Open-close cycle of all fingers (1 Hz) through the bone targets, by forward kinematics
+    about each joint's flexion axis up to 70% of its flexion limit (hinge joints) / 40% (the
+    finger bases), while the palm wanders by +-2 cm."""
 
-    def update(k, t):
-        tgt = rest.copy()
-        tgt[0, :3] += 0.02 * np.array([np.sin(t), np.cos(1.3 * t) - 1, 0.0])
-        flex = 0.7 * (1 - np.cos(2 * np.pi * t))
-        for b in range(1, 16):
-            depth = (b - 1) % 3 + 1
-            tgt[b, 3:] = quat_mul(quat_exp(np.array([0.0, flex * depth / 3, 0.0])), rest[b, 3:])
-        solver.set_bone_targets(tgt)
-    return update
+    def __init__(self):
+        self.asset = None
+
+    def objects(self, asset):  # remembers the asset (joint axes, limits) for the targets
+        self.asset = asset
+        return ()
+
+    def __call__(self, solver, state):
+        a = self.asset
+        lim = np.asarray(a.joint_limits, float)[:, 0, 1]
+        amp = np.where(np.asarray(a.joint_type) == 1, 0.7, 0.4) * np.maximum(lim, 0.0)
+
+        def update(k, t):
+            s = 0.5 * (1.0 - np.cos(2.0 * np.pi * t))
+            off = 0.02 * np.array([np.sin(t), np.cos(1.3 * t) - 1.0, 0.0])
+            solver.set_bone_targets(flexed_pose(a, s * amp, off))
+        return update
 
 
-class _FingertipLoad:
-    """Dead load on the five distal bones (thumb, index..little): the `press` scenario."""
+class _PadLoad:
+    """Dead load [N] spread over the fingertip pad nodes (U = -f . x): the `press` scenario."""
 
-    def __init__(self, model, force):
-        self.dofs = np.array([model.body_dof0 + 6 * b + 2 for b in (3, 6, 9, 12, 15)])
-        self.force = force
+    def __init__(self, pads):
+        self.dofs = np.concatenate([3 * p + 2 for p in pads])
+        self.share = np.concatenate([np.full(len(p), 1.0 / len(p)) for p in pads])
+        self.force = 0.0
 
     def add_all(self, solver, state, grad, values):
-        grad[self.dofs] += self.force
+        grad[self.dofs] -= self.force * self.share
         return 0.0
 
 
-def _press(solver, state):
-    """Open hand held by its targets, 5 N pressing down on each fingertip, ramped over 0.2 s."""
-    term = _FingertipLoad(solver.model, 0.0)
-    solver.terms.append(term)
+class _Press:
+    """Open hand held by its targets; 5 N on each fingertip pad pushing up (+z, a surface under
+    the palm-down hand), ramped over 0.2 s."""
 
-    def update(k, t):
-        term.force = 5.0 * min(1.0, t / 0.2)
-    return update
+    def __init__(self):
+        self.asset = None
+
+    def objects(self, asset):
+        self.asset = asset
+        return ()
+
+    def __call__(self, solver, state):
+        term = _PadLoad(fingertip_pad_nodes(self.asset))
+        solver.terms.append(term)
+
+        def update(k, t):
+            term.force = 5.0 * min(1.0, t / 0.2)
+        return update
 
 
-SCENARIOS = {"free": _free, "press": _press}
+SCENARIOS = {"free": _Free(), "press": _Press()}
+from .contact_scenarios import GraspScenario  # noqa: E402  # contact:
+SCENARIOS["grasp"] = GraspScenario()  # contact: ball under the palm, fingers closing (contact_scenarios.py)
 
 
 def run(scenario, mesh, steps, preconditioner):
     from .model import build_model
     from .solver import Solver
     asset, source = _asset(mesh)
-    model = build_model(asset, {"preconditioner": preconditioner})
+    objects = getattr(SCENARIOS[scenario], "objects", None)  # contact: scenarios may add rigid objects
+    model = build_model(asset, {"preconditioner": preconditioner}, objects=objects(asset) if objects else ())
     t0 = time.perf_counter()
     warm = Solver(model)  # compile every kernel once on a throwaway state
     ws = model.initial_state()
@@ -83,7 +122,7 @@ def run(scenario, mesh, steps, preconditioner):
     solver = Solver(model)
     state = model.initial_state()
     update = SCENARIOS[scenario](solver, state)
-    ms, setup, solve, iters, contacts, coll, caps = [], [], [], [], [], [], 0
+    ms, setup, solve, iters, contacts, coll, caps, refac = [], [], [], [], [], [], 0, 0
     for k in range(steps):
         update(k, k * DT)
         t = time.perf_counter()
@@ -95,39 +134,53 @@ def run(scenario, mesh, steps, preconditioner):
         contacts.append(st.contacts)
         coll.append(st.collision_ms)
         caps += st.hit_cap
+        refac += st.refactored
     ms = np.array(ms)
     return {
         "mesh": mesh, "source": source, "tets": int(len(model.tets)), "dofs": int(model.dof_count),
-        "scenario": scenario, "preconditioner": preconditioner, "steps": steps,
-        "median_ms": float(np.median(ms)), "p99_ms": float(np.percentile(ms, 99)),
-        "steps_per_s": float(1e3 / np.median(ms)), "setup_ms": float(np.median(setup)),
-        "solve_ms": float(np.median(solve)), "cg_iters_median": float(np.median(iters)),
-        "cg_iters_max": int(max(iters)), "cg_hit_cap": int(caps),
+        "nnz": int(len(model.indices)), "scenario": scenario, "preconditioner": preconditioner,
+        "steps": steps, "median_ms": float(np.median(ms)), "p99_ms": float(np.percentile(ms, 99)),
+        "max_ms": float(ms.max()), "steps_per_s": float(1e3 / np.median(ms)),
+        "setup_ms": float(np.median(setup)), "solve_ms": float(np.median(solve)),
+        "cg_iters_median": float(np.median(iters)), "cg_iters_max": int(max(iters)),
+        "cg_hit_cap": int(caps), "refactors": int(refac),
         "contacts_median": float(np.median(contacts)), "collision_ms": float(np.median(coll)),
         "compile_s": compile_s, "finite": bool(np.all(np.isfinite(state.node_x))),
         "paper_steps_per_s": PAPER_STEPS_PER_S,
     }
 
 
+COLUMNS = ["scenario", "mesh", "tets", "dofs", "preconditioner", "median_ms", "p99_ms",
+           "steps_per_s", "setup_ms", "solve_ms", "cg_iters_median", "cg_hit_cap", "refactors",
+           "compile_s"]
+
+
+def format_table(rows):
+    lines = [" ".join(f"{c:>15}" for c in COLUMNS)]
+    for r in rows:
+        lines.append(" ".join(f"{r[c]:>15.3f}" if isinstance(r[c], float) else f"{r[c]!s:>15}"
+                              for c in COLUMNS))
+    lines.append(f"paper: {PAPER_STEPS_PER_S} steps/s (856 tets, one i7-5820K core; "
+                 "Fig. 9: setup ~ solve ~ 10 ms)")
+    return "\n".join(lines)
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(prog="softhand bench", description=__doc__.splitlines()[0])
     ap.add_argument("--scenario", choices=sorted(SCENARIOS), action="append")
-    ap.add_argument("--mesh", choices=sorted(MESH_TETS), action="append")
-    ap.add_argument("--preconditioner", choices=["factor", "block_jacobi", "jacobi"], action="append")
+    ap.add_argument("--mesh", choices=MESHES, action="append")
+    ap.add_argument("--preconditioner", choices=PRECONDITIONERS, action="append")
+    ap.add_argument("--all-preconditioners", action="store_true",
+                    help="run every preconditioner (the default factor, block_jacobi, the paper's jacobi)")
     ap.add_argument("--steps", type=int, default=300)
     ap.add_argument("--json", action="store_true")
     a = ap.parse_args(argv)
+    if a.steps < 1:
+        ap.error(f"--steps={a.steps}: must be >= 1")
+    precs = list(PRECONDITIONERS) if a.all_preconditioners else (a.preconditioner or ["factor"])
     rows = [run(s, m, a.steps, p) for m in (a.mesh or ["coarse", "fine"])
-            for s in (a.scenario or ["free", "press"]) for p in (a.preconditioner or ["factor"])]
-    if a.json:
-        print(json.dumps(rows, indent=1))
-        return 0
-    cols = ["scenario", "mesh", "tets", "dofs", "preconditioner", "median_ms", "p99_ms",
-            "steps_per_s", "setup_ms", "solve_ms", "cg_iters_median", "cg_hit_cap", "compile_s"]
-    print(" ".join(f"{c:>14}" for c in cols))
-    for r in rows:
-        print(" ".join(f"{r[c]:>14.3f}" if isinstance(r[c], float) else f"{r[c]!s:>14}" for c in cols))
-    print(f"paper: {PAPER_STEPS_PER_S} steps/s (856 tets, one i7-5820K core)")
+            for s in (a.scenario or ["free", "press"]) for p in precs]
+    print(json.dumps(rows, indent=1) if a.json else format_table(rows))
     return 0
 
 

@@ -176,3 +176,39 @@ def _count_tets(cell, lo):
     lo = 0.5 * (lo + hi) - 0.5 * dims * cell
     idx = np.stack(np.meshgrid(*[np.arange(d) for d in dims], indexing="ij"), -1).reshape(-1, 3)
     return 6 * int(_inside(lo + (idx + 0.5) * cell).sum())
+
+
+# ---- bench drivers that work on any HandAsset-like hand (the real hand model or the box hand)
+
+def flexed_pose(asset, flex, palm_offset=(0.0, 0.0, 0.0)):
+    """Bone poses (16,7) by forward kinematics: every joint j rotated by flex[j] [rad] about its
+    flexion axis (parent frame; positive curls toward the palm), the palm shifted by palm_offset [m].
+    q_child = q_parent exp(flex a_parent) q_rest_rel;  p_child = p_parent + R_parent anchor_parent."""
+    from .rotations import quat_exp, quat_mul, quat_to_matrix
+    pose = np.asarray(asset.bone_rest_pose, float).copy()
+    pose[0, :3] += palm_offset
+    for j in np.argsort(np.asarray(asset.joint_child)):
+        p, c = int(asset.joint_parent[j]), int(asset.joint_child[j])
+        qp = pose[p, 3:]
+        rot = quat_exp(np.asarray(asset.joint_flex_axis[j], float) * float(flex[j]))
+        pose[c, 3:] = quat_mul(quat_mul(qp, rot), np.asarray(asset.joint_rest_rotation[j], float))
+        pose[c, :3] = pose[p, :3] + quat_to_matrix(qp) @ np.asarray(asset.joint_anchor_parent[j], float)
+    return pose
+
+
+def fingertip_pad_nodes(asset, radius=0.008):
+    """Per distal bone (thumb, index..little): tissue nodes within radius [m] of the bone's distal
+    end on its ventral (palm) side: where a fingertip presses on a surface."""
+    from .rotations import quat_to_matrix
+    X = np.asarray(asset.tet_nodes, float)
+    pads = []
+    for b in (3, 6, 9, 12, 15):
+        pose = np.asarray(asset.bone_rest_pose[b], float)
+        R = quat_to_matrix(pose[3:])
+        tip = pose[:3] + R @ np.array([float(asset.bone_length[b]), 0.0, 0.0])
+        d = X - tip
+        near = (np.linalg.norm(d, axis=1) < radius) & (d @ R[:, 2] < 0.0)  # -z of the bone: ventral
+        if not near.any():
+            near = np.linalg.norm(d, axis=1) <= np.sort(np.linalg.norm(d, axis=1))[3]
+        pads.append(np.flatnonzero(near))
+    return pads

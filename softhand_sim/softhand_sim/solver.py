@@ -35,7 +35,7 @@ class StepStats:
     solve_ms: float = 0.0       # PCG + advance
     collision_ms: float = 0.0   # pre-step hooks
     hit_cap: bool = False       # CG stopped at cg_max_iterations
-    refactored: bool = False    # the factor preconditioner was refreshed in this step (in setup)
+    refactored: bool = False    # a new factor preconditioner was published in this step (in setup)
     contacts: int = 0
 
 
@@ -103,10 +103,15 @@ class Solver:
         if p["preconditioner"] not in kinds:
             raise ValueError(f"preconditioner={p['preconditioner']!r}: expected one of {sorted(kinds)}")
         self.precond = kinds[p["preconditioner"]]
-        self.factor = pcg_mod.Factor(model.dof_count)
+        # factor preconditioner: symbolic analysis once here; numeric refresh spread over steps
+        # (at most factor_refresh_steps slices; 2 slices per step after a CG with more than
+        # factor_refresh_iterations iterations)
         self.refactor_every = int(p["factor_refresh_steps"])
         self.refactor_iters = int(p["factor_refresh_iterations"])
-        self._steps_since_factor = 0
+        if self.refactor_every < 1:
+            raise ValueError(f"factor_refresh_steps={self.refactor_every}: must be >= 1")
+        self.factor = (pcg_mod.Factor(model.dof_count, m.indptr, m.indices, max_slices=self.refactor_every)
+                       if self.precond == pcg_mod.PRECOND_FACTOR else pcg_mod.Factor(model.dof_count))
         self._last_iters = 0
         n, nnz = m.dof_count, len(m.indices)
         self.grad = np.zeros(n)
@@ -196,13 +201,13 @@ class Solver:
         finalize_system(self.values, self.rhs, self.grad, state.v, dt, m.node_mass, m.body_mass,
                         state.body_q, m.body_inertia_local, m.diag_slot, m.body_slots, m.body_dof0)
         refactored = False
-        if self.precond == pcg_mod.PRECOND_FACTOR and (
-                not self.factor.valid or self._steps_since_factor >= self.refactor_every
-                or self._last_iters > self.refactor_iters):
-            self.factor.refresh(m.indptr, m.indices, self.values)
-            self._steps_since_factor = 0
-            refactored = True
-        self._steps_since_factor += 1
+        if self.precond == pcg_mod.PRECOND_FACTOR:
+            if not self.factor.valid:
+                self.factor.refresh(m.indptr, m.indices, self.values)
+                refactored = True
+            else:
+                catch_up = self._last_iters > self.refactor_iters and self.factor.slices > 1
+                refactored = self.factor.advance(self.values, 2 if catch_up else 1)
         t2 = time.perf_counter()
         iters, res, cap = pcg_mod.pcg(
             m.indptr, m.indices, self.values, self.rhs, state.v, self.cg_tol, self.cg_max_iter,

@@ -31,7 +31,7 @@ def build_hand(measures=None, side="right", resolution="coarse"):
     skin_v, skin_f = build_skin(shape)
     skin_volume = signed_volume(skin_v, skin_f)
     t1 = time.perf_counter()
-    nodes, tets, figures = build_tissue(shape, skin_v, skin_volume, resolution)
+    nodes, tets, figures = build_tissue(shape, skin_v, skin_volume, resolution, m)
     t2 = time.perf_counter()
     skin_tet, skin_bary, skin_dist = embed_points(nodes, tets, skin_v)
     prox, dist, rot = bone_chain_points(m)

@@ -87,6 +87,12 @@ def embed_points(nodes, tets, points):
         better = wmin > best_min
         best_min = np.where(better, wmin, best_min)
         best_tet = np.where(better, cand[:, j], best_tet)
+    # the nearest centroids can miss the containing tet of a coarse, stretched mesh: test all
+    for p in np.flatnonzero(best_min < -INSIDE_TOLERANCE):
+        w = barycentric(nodes, tets, np.arange(len(tets)), np.repeat(points[p][None], len(tets), 0))
+        t = int(np.argmax(w.min(axis=1)))
+        if w[t].min() > best_min[p]:
+            best_min[p], best_tet[p] = w[t].min(), t
     inside = best_min >= -INSIDE_TOLERANCE
     distance = np.zeros(len(points))
     outside = np.flatnonzero(~inside)

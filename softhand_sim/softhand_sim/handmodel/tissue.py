@@ -1,4 +1,7 @@
-"""Tissue mesh of a target size: choose lattice spacing and level-set offset for isosurface stuffing.
+"""Tissue mesh of a target size.
+
+"coarse" (paper Sect. 5.1: 856 tets) comes from the structured hex grid of hexmesh.py (~850 tets,
+fingers one ring of cells across). "fine" uses isosurface stuffing, described below.
 
 The stuffed mesh's boundary nodes lie on the level set, and its flat faces cut the curved skin
 (fingers are only one or two lattice cells across), so at the zero level it holds less volume than
@@ -8,13 +11,13 @@ lattice spacing until the tet count falls in the requested range. Everything is 
 """
 import numpy as np
 
+from softhand_sim.handmodel.hexmesh import coarse_tissue
 from softhand_sim.handmodel.tets import dihedral_angles, stuff, tet_volumes
 
 TET_COUNT_RANGES = {"coarse": (800, 900, 850), "fine": (7000, 10000, 8500)}  # (min, max, aim)
-COVER_TOLERANCE = 0.003  # [m] largest allowed distance of a skin vertex to its tet
-COARSE_STRETCH = np.array([1.6, 1.0, 1.0])  # coarse lattice is longer along the fingers (x)
-COARSE_SPACING_START = 0.0096  # [m] for the default hand (314 cm^3), scaled with the hand size
-COARSE_SPACING_STEPS = tuple(0.97 ** k for k in range(12))  # scanned coarse to fine
+# [m] stated embedding tolerance of the coarse mesh: its flat faces span up to ~15 mm of curved
+# skin (webs between fingers, thenar), so a few % of skin vertices lie 3-6 mm outside their tet
+COARSE_EMBED_TOLERANCE = 0.0065
 OFFSET_RANGE = (-0.002, 0.004)  # [m] search interval of the level-set offset
 OFFSET_BISECTIONS = 11
 SPACING_STEP = 1.01  # relative step of the fine lattice-spacing scan
@@ -47,32 +50,26 @@ def _figures(nodes, tets, h, off, err, cover):
                 tet_count=int(len(tets)), max_skin_distance=float(cover))
 
 
-def build_tissue(shape, skin_vertices, skin_volume, resolution="coarse"):
+def build_tissue(shape, skin_vertices, skin_volume, resolution="coarse", measures=None):
     """Tet mesh with its volume matched to the skin's.
 
-    "fine": a tet count in TET_COUNT_RANGES["fine"] (isotropic lattice).
-    "coarse": the coarsest lattice (stretched 1.6x along the fingers) whose tets reach every
-    skin vertex within COVER_TOLERANCE. NOTE: a lattice mesher cannot reach the paper's 856
-    tets and keep the fingers: at ~850 tets the lattice cells (~1.8 cm) are wider than a
-    finger and the fingertips fall out of the mesh, so the coarse mesh is larger (~3-4k).
+    "coarse": the hex-grid mesh of hexmesh.coarse_tissue (needs `measures`), 800-900 tets.
+    "fine": isosurface stuffing with a tet count in TET_COUNT_RANGES["fine"] (isotropic lattice).
     Returns nodes (N,3), tets (T,4) int32 (positive volume) and a dict of figures.
     """
     from softhand_sim.handmodel.embedding import embed_points
 
     if resolution not in TET_COUNT_RANGES:
         raise ValueError(f"resolution must be one of {sorted(TET_COUNT_RANGES)}, got {resolution!r}")
+    if resolution == "coarse":
+        if measures is None:
+            raise ValueError("build_tissue(resolution='coarse') needs the hand measures")
+        nodes, tets, fig = coarse_tissue(shape, measures, skin_volume)
+        cover = embed_points(nodes, tets, skin_vertices)[2].max()
+        return nodes, tets.astype(np.int32), _figures(nodes, tets, fig["spacing"], fig["offset"],
+                                                      fig["volume_error"], cover)
     lo = skin_vertices.min(axis=0) - 0.005
     hi = skin_vertices.max(axis=0) + 0.005
-    if resolution == "coarse":
-        tried = []
-        start = COARSE_SPACING_START * (skin_volume / 314e-6) ** (1.0 / 3.0)
-        for h in (start * k for k in COARSE_SPACING_STEPS):
-            nodes, tets, off, err = _stuff_matched(shape, lo, hi, h, skin_volume, COARSE_STRETCH)
-            cover = embed_points(nodes, tets, skin_vertices)[2].max()
-            tried.append((round(h, 5), len(tets), round(float(cover), 5)))
-            if cover <= COVER_TOLERANCE:
-                return nodes, tets.astype(np.int32), _figures(nodes, tets, h, off, err, cover)
-        raise RuntimeError(f"no coarse lattice covered the skin; tried (h, tets, max distance): {tried}")
     t_min, t_max, t_aim = TET_COUNT_RANGES[resolution]
     # first guess from the volume: a BCC tet holds h^3 / 12, boundary stencils are smaller
     h = (12.0 * skin_volume / (0.7 * t_aim)) ** (1.0 / 3.0)

@@ -1,0 +1,289 @@
+"""Sparse LDLᵀ of the SPD system matrix A = M + dt² H over its fixed CSR pattern (the "factor"
+preconditioner of pcg.py).
+
+The pattern never changes after model build, so everything structural is done once:
+  * a fill-reducing symmetric ordering P (multiple minimum degree on A + Aᵀ, taken from SuperLU's
+    column ordering; reverse Cuthill-McKee as a fallback),
+  * the elimination tree, the column pointers of L and, for every row k of L, its nonzero columns
+    in topological order with the slot each entry goes to (Davis' up-looking LDL, "LDL: a concise
+    sparse Cholesky package", ACM TOMS 2005, done symbolically once),
+  * row chunks of equal flop count, so a numeric factorization can be spread over several steps.
+A numeric factorization is then a straight pass over precomputed index arrays (no searching, no
+allocation): rows k0..k1 of L and D from a snapshot of the matrix values.
+
+Solve: z = Pᵀ L⁻ᵀ D⁻¹ L⁻¹ P r with L unit lower triangular stored by columns (CSC, diagonal not
+stored) and D⁻¹ stored, so each triangular pass is one multiply-add per entry of L.
+"""
+import numpy as np
+from numba import njit
+
+
+def fill_reducing_order(indptr, indices, n):
+    """Symmetric permutation perm (new -> old) that keeps L sparse: minimum degree on A + Aᵀ
+    (SuperLU's MMD_AT_PLUS_A, computed on the pattern only), else reverse Cuthill-McKee."""
+    import scipy.sparse as sp
+    pattern = sp.csr_matrix((np.ones(len(indices)), indices, indptr), shape=(n, n))
+    try:
+        from scipy.sparse.linalg import splu
+        # a strongly diagonal matrix with A's pattern: SuperLU keeps the diagonal pivots and its
+        # column ordering is the minimum-degree ordering of the pattern
+        A = (pattern + sp.identity(n) * (np.diff(indptr).max() + 1.0)).tocsc()
+        lu = splu(A, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
+                  options={"SymmetricMode": True})
+        perm = np.empty(n, np.int64)
+        perm[lu.perm_c] = np.arange(n)  # perm_c maps old column -> new position
+        return perm.astype(np.int32)
+    except Exception:  # noqa: BLE001  (ordering only: RCM is always available)
+        from scipy.sparse.csgraph import reverse_cuthill_mckee
+        return reverse_cuthill_mckee(pattern, symmetric_mode=True).astype(np.int32)
+
+
+@njit(cache=True)
+def _symbolic_counts(n, indptr, indices, perm, pinv, parent, lnz, flag):
+    """Elimination tree parent (n,) and column counts lnz (n,) of L (strictly lower) of P A Pᵀ."""
+    for k in range(n):
+        parent[k] = -1
+        flag[k] = k
+        lnz[k] = 0
+        row = perm[k]
+        for p in range(indptr[row], indptr[row + 1]):
+            i = pinv[indices[p]]
+            if i < k:
+                while flag[i] != k:
+                    if parent[i] == -1:
+                        parent[i] = k
+                    lnz[i] += 1
+                    flag[i] = k
+                    i = parent[i]
+
+
+@njit(cache=True)
+def _symbolic_rows(n, indptr, indices, perm, pinv, parent, Lp, Li, row_ptr, row_col, row_slot,
+                   up_ptr, up_row, up_slot, row_flops, flag, stack, fill):
+    """Li (the row indices of every column of L), the per-row patterns of L in topological order
+    (row_col, with row_slot = the entry's index in Li/Lx), the upper-triangle gather lists of
+    P A Pᵀ by column (up_row, up_slot = index into the CSR values) and flops per row."""
+    t = 0
+    u = 0
+    for k in range(n):
+        flag[k] = k
+        up_ptr[k] = u
+        row_ptr[k] = t
+        top = n
+        row = perm[k]
+        for p in range(indptr[row], indptr[row + 1]):
+            i = pinv[indices[p]]
+            if i > k:
+                continue
+            up_row[u] = i
+            up_slot[u] = p
+            u += 1
+            ln = 0
+            while flag[i] != k:  # walk up the etree until a node already in the pattern
+                stack[ln] = i
+                ln += 1
+                flag[i] = k
+                i = parent[i]
+            while ln > 0:
+                top -= 1
+                ln -= 1
+                stack[top] = stack[ln]
+        flops = 0
+        for q in range(top, n):
+            i = stack[q]
+            if i == k:
+                continue
+            slot = Lp[i] + fill[i]
+            Li[slot] = k
+            fill[i] += 1
+            row_col[t] = i
+            row_slot[t] = slot
+            flops += slot - Lp[i] + 1
+            t += 1
+        row_flops[k] = flops
+    up_ptr[n] = u
+    row_ptr[n] = t
+
+
+def block_pattern(indptr, indices, n, bs=3):
+    """CSR pattern of the bs x bs blocks of an n x n CSR pattern (n divisible by bs) and
+    blk_slots (nnzB, bs, bs) int32: the value index of each scalar entry of each block (-1: absent)."""
+    if n % bs:
+        raise ValueError(f"dof count {n} is not a multiple of the block size {bs}")
+    nb = n // bs
+    rows = np.repeat(np.arange(n, dtype=np.int64), np.diff(indptr))
+    keys = (rows // bs) * nb + np.asarray(indices, np.int64) // bs
+    ukeys, inv = np.unique(keys, return_inverse=True)
+    bindptr = np.zeros(nb + 1, np.int64)
+    np.add.at(bindptr, ukeys // nb + 1, 1)
+    slots = np.full((len(ukeys), bs, bs), -1, np.int32)
+    slots[inv, rows % bs, np.asarray(indices) % bs] = np.arange(len(indices), dtype=np.int32)
+    return np.cumsum(bindptr).astype(np.int32), (ukeys % nb).astype(np.int32), slots
+
+
+@njit(cache=True)
+def _inv3_spd(A, out):
+    """out = A^-1 for a symmetric 3x3 block; returns False (and out = inverse |diagonal|) when A
+    is not positive definite."""
+    a, b, c = A[0, 0], A[0, 1], A[0, 2]
+    d, e, f = A[1, 1], A[1, 2], A[2, 2]
+    c00 = d * f - e * e
+    c01 = c * e - b * f
+    c02 = b * e - c * d
+    det = a * c00 + b * c01 + c * c02
+    if a > 0.0 and a * d - b * b > 0.0 and det > 0.0:
+        s = 1.0 / det
+        out[0, 0] = c00 * s
+        out[0, 1] = out[1, 0] = c01 * s
+        out[0, 2] = out[2, 0] = c02 * s
+        out[1, 1] = (a * f - c * c) * s
+        out[1, 2] = out[2, 1] = (b * c - a * e) * s
+        out[2, 2] = (a * d - b * b) * s
+        return True
+    for i in range(3):
+        for j in range(3):
+            out[i, j] = 0.0
+        out[i, i] = 1.0 / max(abs(A[i, i]), 1e-300)
+    return False
+
+
+@njit(cache=True)
+def ldlt_numeric_rows(k0, k1, values, blk_slots, up_ptr, up_row, up_slot, row_ptr, row_col,
+                      row_slot, Lp, Li, Lx, LxR, Dinv, Y):
+    """Block rows k0..k1-1 of the block LDLᵀ (3x3 blocks, up-looking): P A Pᵀ = L D Lᵀ with L unit
+    block-lower, D block-diagonal SPD. Rows < k0 must be done (they are read). With y_i = D_i L_kiᵀ
+    from L y = A[:k, k]:  L_ki = y_iᵀ D_i⁻¹,  D_k = A_kk - sum_i L_ki y_i.
+    L goes to Lx (by columns, (nnzL,3,3)) and LxR (by rows, the order of row_col); Dinv (nb,3,3)
+    holds D_k⁻¹. Y (nb,3,3) is zero scratch and is left zero. Returns the count of D_k blocks that
+    were not positive definite (replaced by their inverse |diagonal|; 0 for an SPD matrix)."""
+    bad = 0
+    Dk = np.empty((3, 3))
+    for k in range(k0, k1):
+        for q in range(up_ptr[k], up_ptr[k + 1]):  # column k of the upper triangle: block (perm k, perm i)ᵀ
+            i = up_row[q]
+            e = up_slot[q]
+            for a in range(3):
+                for b in range(3):
+                    s = blk_slots[e, b, a]
+                    if s >= 0:
+                        Y[i, a, b] += values[s]
+        for a in range(3):
+            for b in range(3):
+                Dk[a, b] = Y[k, a, b]
+                Y[k, a, b] = 0.0
+        for t in range(row_ptr[k], row_ptr[k + 1]):
+            i = row_col[t]
+            pe = row_slot[t]
+            y00, y01, y02 = Y[i, 0, 0], Y[i, 0, 1], Y[i, 0, 2]
+            y10, y11, y12 = Y[i, 1, 0], Y[i, 1, 1], Y[i, 1, 2]
+            y20, y21, y22 = Y[i, 2, 0], Y[i, 2, 1], Y[i, 2, 2]
+            for a in range(3):
+                for b in range(3):
+                    Y[i, a, b] = 0.0
+            for p in range(Lp[i], pe):  # Y_r -= L_ri y_i
+                r = Li[p]
+                for a in range(3):
+                    l0, l1, l2 = Lx[p, a, 0], Lx[p, a, 1], Lx[p, a, 2]
+                    Y[r, a, 0] -= l0 * y00 + l1 * y10 + l2 * y20
+                    Y[r, a, 1] -= l0 * y01 + l1 * y11 + l2 * y21
+                    Y[r, a, 2] -= l0 * y02 + l1 * y12 + l2 * y22
+            Di = Dinv[i]
+            for a in range(3):  # L_ki = y_iᵀ D_i⁻¹ (row a of L_ki = column a of y_i times D_i⁻¹)
+                ya0, ya1, ya2 = (y00, y01, y02)[a], (y10, y11, y12)[a], (y20, y21, y22)[a]
+                for b in range(3):
+                    lab = ya0 * Di[0, b] + ya1 * Di[1, b] + ya2 * Di[2, b]
+                    Lx[pe, a, b] = lab
+                    LxR[t, a, b] = lab
+            for a in range(3):  # D_k -= L_ki y_i
+                l0, l1, l2 = Lx[pe, a, 0], Lx[pe, a, 1], Lx[pe, a, 2]
+                Dk[a, 0] -= l0 * y00 + l1 * y10 + l2 * y20
+                Dk[a, 1] -= l0 * y01 + l1 * y11 + l2 * y21
+                Dk[a, 2] -= l0 * y02 + l1 * y12 + l2 * y22
+        if not _inv3_spd(Dk, Dinv[k]):
+            bad += 1
+    return bad
+
+
+@njit(cache=True)
+def ldlt_solve(Lp, Li, Lx, row_ptr, row_col, LxR, Dinv, perm, tmp, r, z):
+    """z = A⁻¹ r with P A Pᵀ = L D Lᵀ in 3x3 blocks (L unit block-lower without its diagonal, by
+    block rows for the forward pass and by block columns for the backward one: both gather).
+    tmp: (3 nb,) scratch."""
+    nb = perm.shape[0]
+    for k in range(nb):  # L w = P r
+        o = 3 * perm[k]
+        w0, w1, w2 = r[o], r[o + 1], r[o + 2]
+        for t in range(row_ptr[k], row_ptr[k + 1]):
+            c = 3 * row_col[t]
+            x0, x1, x2 = tmp[c], tmp[c + 1], tmp[c + 2]
+            w0 -= LxR[t, 0, 0] * x0 + LxR[t, 0, 1] * x1 + LxR[t, 0, 2] * x2
+            w1 -= LxR[t, 1, 0] * x0 + LxR[t, 1, 1] * x1 + LxR[t, 1, 2] * x2
+            w2 -= LxR[t, 2, 0] * x0 + LxR[t, 2, 1] * x1 + LxR[t, 2, 2] * x2
+        tmp[3 * k] = w0
+        tmp[3 * k + 1] = w1
+        tmp[3 * k + 2] = w2
+    for k in range(nb):  # u = D⁻¹ w
+        o = 3 * k
+        w0, w1, w2 = tmp[o], tmp[o + 1], tmp[o + 2]
+        for a in range(3):
+            tmp[o + a] = Dinv[k, a, 0] * w0 + Dinv[k, a, 1] * w1 + Dinv[k, a, 2] * w2
+    for i in range(nb - 1, -1, -1):  # Lᵀ x = u: x_i = u_i - sum_r L_riᵀ x_r
+        o = 3 * i
+        u0, u1, u2 = tmp[o], tmp[o + 1], tmp[o + 2]
+        for p in range(Lp[i], Lp[i + 1]):
+            c = 3 * Li[p]
+            x0, x1, x2 = tmp[c], tmp[c + 1], tmp[c + 2]
+            u0 -= Lx[p, 0, 0] * x0 + Lx[p, 1, 0] * x1 + Lx[p, 2, 0] * x2
+            u1 -= Lx[p, 0, 1] * x0 + Lx[p, 1, 1] * x1 + Lx[p, 2, 1] * x2
+            u2 -= Lx[p, 0, 2] * x0 + Lx[p, 1, 2] * x1 + Lx[p, 2, 2] * x2
+        tmp[o] = u0
+        tmp[o + 1] = u1
+        tmp[o + 2] = u2
+    for k in range(nb):
+        o = 3 * perm[k]
+        z[o] = tmp[3 * k]
+        z[o + 1] = tmp[3 * k + 1]
+        z[o + 2] = tmp[3 * k + 2]
+
+
+class Symbolic:
+    """Everything structural about the 3x3-block LDLᵀ of a fixed CSR pattern (computed once):
+    the block pattern, its ordering perm (new -> old block), L's block structure (Lp, Li), the
+    per-row patterns and gather lists of ldlt_numeric_rows, flops per block row."""
+
+    def __init__(self, indptr, indices, n, perm=None):
+        bindptr, bindices, self.blk_slots = block_pattern(indptr, indices, n)
+        self.n = n
+        self.nb = nb = n // 3
+        self.perm = (fill_reducing_order(bindptr, bindices, nb) if perm is None
+                     else np.asarray(perm, np.int32))
+        self.pinv = np.empty(nb, np.int32)
+        self.pinv[self.perm] = np.arange(nb, dtype=np.int32)
+        parent = np.empty(nb, np.int32)
+        lnz = np.empty(nb, np.int32)
+        flag = np.empty(nb, np.int32)
+        _symbolic_counts(nb, bindptr, bindices, self.perm, self.pinv, parent, lnz, flag)
+        self.Lp = np.zeros(nb + 1, np.int32)
+        np.cumsum(lnz, out=self.Lp[1:])
+        self.nnz_L = int(self.Lp[-1])  # 3x3 blocks
+        self.Li = np.zeros(self.nnz_L, np.int32)
+        self.row_ptr = np.zeros(nb + 1, np.int32)
+        self.row_col = np.zeros(self.nnz_L, np.int32)
+        self.row_slot = np.zeros(self.nnz_L, np.int32)
+        nup = (len(bindices) + nb) // 2
+        self.up_ptr = np.zeros(nb + 1, np.int32)
+        self.up_row = np.zeros(nup, np.int32)
+        self.up_slot = np.zeros(nup, np.int32)
+        self.row_flops = np.zeros(nb, np.int64)
+        _symbolic_rows(nb, bindptr, bindices, self.perm, self.pinv, parent, self.Lp, self.Li,
+                       self.row_ptr, self.row_col, self.row_slot, self.up_ptr, self.up_row,
+                       self.up_slot, self.row_flops, flag, np.zeros(nb, np.int32),
+                       np.zeros(nb, np.int32))
+        self.row_flops *= 54  # one 3x3 block multiply-subtract = 27 multiply-adds
+        self.flops = int(self.row_flops.sum())
+
+    def chunks(self, count):
+        """count + 1 row boundaries splitting the numeric factorization into equal-flop chunks."""
+        cum = np.cumsum(self.row_flops + 1)
+        cuts = np.searchsorted(cum, cum[-1] * np.arange(1, count) / count)
+        return np.unique(np.r_[0, cuts, self.nb]).astype(np.int64)
