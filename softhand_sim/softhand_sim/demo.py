@@ -136,7 +136,7 @@ def run_demo(bag, out_dir, rate=1.0, params_file=None, preview=True, startup_tim
         procs.start("record", [_script("softhand-record"), *ros, "-p", f"output:={out_dir / 'bag'}"])
         time.sleep(2.0)  # let the recorder discover every publisher before the first tracker frame
         say(f"  nodes up after {time.monotonic() - t0:.1f} s; playing {bag.name} at rate {rate}")
-        play = procs.start("play", [_script("softhand-play"), str(bag), "--rate", str(rate), *ros])
+        play = procs.start("play", [_script("softhand-play"), str(bag), "--rate", str(rate), "--wait-subscribers", "1", *ros])
         play.wait()
         if play.returncode != 0:
             raise SystemExit(f"error: play_node failed:\n{procs.tail('play')}")

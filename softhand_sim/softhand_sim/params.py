@@ -96,7 +96,9 @@ TRACKING = {
     "tracked_ktheta": P(float, "N*m/rad", "coupling to the tracked bone, angular (paper: 200)", positive=True),
     "sim_kx": P(float, "N/m", "palm coupling to the full-simulation copy, linear (paper: 50; phalanxes 0)", 0.0),
     "sim_ktheta": P(float, "N*m/rad", "coupling to the full-simulation copy, angular (paper: 200)", 0.0),
+    "damping_ratio": P(float, "-", "critical-damping fraction of each tracked coupling (0: the paper's plain springs overshoot 67%)", 0.0, 5.0),
     "tracker_timeout": P(float, "s", "hold the last target when no valid frame arrived for this long", positive=True),
+    "sim_timeout": P(float, "s", "forget the full-simulation copy when /hand/bones is older than this", positive=True),
     "tracker_to_world": P(list, "m, quaternion", "tracker->world transform [px py pz qx qy qz qw]"),
     "min_bone_length": P(float, "m", "shorter tracked bones reject the frame", 0.0),
     "max_bone_length": P(float, "m", "longer tracked bones reject the frame", positive=True),
@@ -127,13 +129,19 @@ PLAY = {
     "start": P(float, "s", "skip this much of the bag", 0.0),
     "topic": P(str, "-", "tracker topic in the bag"),
     "publish_clock": P(bool, "-", "publish /clock with the bag time"),
+    "clock_rate": P(float, "Hz", "/clock ticks per second between messages (0: only with messages)", 0.0, 1e4),
+    "wait_subscribers": P(int, "-", "wait until this many subscribers match the topic before playing", 0, 1000),
+    "wait_timeout": P(float, "s", "give up waiting for subscribers after this long", 0.0),
 }
 
 RECORD = {
     "output": P(str, "-", "rosbag2 directory to create (empty: runs/<stamp>/bag)"),
     "topics": P(list, "-", "topics to record (empty: every softhand topic but /hand/skin_vertices)"),
     "record_skin_vertices": P(bool, "-", "also record /hand/skin_vertices (large)"),
-    "progress_period": P(float, "s", "how often to log messages/MB written", positive=True),
+    "progress_period": P(float, "s", "how often to log messages/MB written", 0.1, 3600.0),
+    "flush_period": P(float, "s", "write the pending mcap chunk this often (bounds what a SIGKILL loses)", 0.05, 3600.0),
+    "discovery_period": P(float, "s", "look for newly published wanted topics this often", 0.01, 60.0),
+    "stamp_source": P(str, "-", "bag timestamp of each message", choices=("receive", "header")),
 }
 
 SCHEMA = {

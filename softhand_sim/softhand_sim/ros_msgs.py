@@ -352,6 +352,47 @@ def triangle_marker(vertices, triangles, stamp, color=(0.9, 0.7, 0.6, 1.0), ns: 
     return m
 
 
+class TriangleMarkerSerializer:
+    """Serialized (CDR) TRIANGLE_LIST markers built with numpy, for publishing at a steady rate.
+
+    rclpy needs ~1.7 us to build and ~5 us to serialize each geometry_msgs/Point, i.e. ~0.1 s for a
+    6000-triangle skin: too slow for 10 Hz on two cores. The marker's CDR bytes are
+    prefix | point count | pad | float64 xyz... | suffix, and only the stamp and the points change,
+    so the prefix and suffix are taken once from rclpy's own serialization of a one-point template
+    marker and reused. rclpy's
+    ``Publisher.publish`` accepts the bytes as they are. That they decode to the same message as
+    rclpy's serialization is checked in tests/test_ros_msgs.py.
+    """
+
+    def __init__(self, color=(0.9, 0.7, 0.6, 1.0), ns: str = "skin", marker_id: int = 0,
+                 frame_id: str = WORLD_FRAME):
+        from rclpy.serialization import serialize_message
+
+        template = triangle_marker(np.zeros((3, 3)), np.zeros((0, 3), dtype=np.int64), 0, color, ns, marker_id,
+                                   frame_id)
+        template.points = [Point(x=1.5, y=2.5, z=3.5)]
+        one = serialize_message(template)
+        # padding bytes of rclpy's CDR are not zeroed, so locate the points by their values
+        data_pos = one.find(np.array([1.5, 2.5, 3.5], "<f8").tobytes())
+        count = np.array([1], "<u4").tobytes()
+        if data_pos < 0 or count not in (one[data_pos - 4:data_pos], one[data_pos - 8:data_pos - 4]):
+            raise RuntimeError("unexpected Marker CDR layout (is the platform big-endian?)")
+        count_pos = data_pos - 4 if one[data_pos - 4:data_pos] == count else data_pos - 8
+        self._prefix = bytearray(one[:count_pos])
+        self._pad = b"\x00" * (data_pos - count_pos - 4)  # float64 elements are 8-aligned
+        self._suffix = one[data_pos + 24:]
+
+    def serialize(self, vertices, triangles, stamp) -> bytes:
+        """CDR bytes of the TRIANGLE_LIST marker of mesh (vertices (V,3) [m], triangles (F,3)) at `stamp`."""
+        v = _check_rows("vertices", vertices, 3)
+        tri = _check_triangles(triangles, v.shape[0])
+        t = _as_time(stamp)
+        self._prefix[4:12] = np.array([t.sec], "<i4").tobytes() + np.array([t.nanosec], "<u4").tobytes()
+        pts = np.ascontiguousarray(v[tri.reshape(-1)], dtype="<f8")
+        return b"".join((self._prefix, np.array([pts.shape[0]], "<u4").tobytes(), self._pad, pts.tobytes(),
+                         self._suffix))
+
+
 def _set_pose(m: Marker, pose) -> None:
     px, py, pz, qx, qy, qz, qw = (float(c) for c in pose)
     m.pose.position.x, m.pose.position.y, m.pose.position.z = px, py, pz

@@ -80,6 +80,7 @@ class SimNode(Node):
         self.diag = DiagnosticsPublisher(self, self.collect_diagnostics, 1.0 / self.params["diagnostics_rate"])
         self.timer = self.create_timer(self.dt, self.on_timer)
         self.marker_period = 1.0 / self.params["skin_marker_rate"]
+        self.marker_serializer = rm.TriangleMarkerSerializer()  # numpy-built CDR: 10x faster than rclpy's
         self.last_marker = -np.inf
 
     # -------------------------------------------------------------------- inputs
@@ -122,7 +123,7 @@ class SimNode(Node):
         self.cg_iters.append(out.stats.cg_iters)
         if elapsed > self.dt:
             self.overruns += 1
-        stamp = self.get_clock().now().to_msg()
+        stamp = rm.stamp_from_seconds(out.t)  # the time of the state: the end of the step
         self.pub_bones.publish(rm.pose_array_from_numpy(out.bone_poses, stamp))
         if len(out.object_names):
             self.pub_objects.publish(rm.object_states_from_numpy(
@@ -135,7 +136,7 @@ class SimNode(Node):
         if t - self.last_marker >= self.marker_period - 1e-6:
             self.last_marker = t
             verts, tris = self.runtime.display_mesh(out)
-            self.pub_marker.publish(rm.triangle_marker(verts, tris, stamp))
+            self.pub_marker.publish(self.marker_serializer.serialize(verts, tris, stamp))
         if out.warning:
             self.get_logger().warning(out.warning, throttle_duration_sec=2.0)
 

@@ -1,0 +1,204 @@
+"""record_node: records softhand topics into a rosbag2 directory with mcap storage.
+
+    softhand-record [-o OUTPUT] [--topics T [T ...]] [--skin-vertices]
+    ros2 run softhand_sim record_node --ros-args -p output:=run1 -p topics:="['/hand/bones']"
+
+What it writes: one mcap file plus metadata.yaml (rosbags Writer, mcap storage). Every channel
+carries its message definition as a ros2msg schema and the type's RIHS01 hash, so `ros2 bag
+info`, `ros2 bag play`, Foxglove and the mcap/mcap_ros2 readers open and decode it.
+
+How it subscribes: the topics of INTERFACE.md are subscribed at start with their contract QoS
+(reliable; /hand/skin_mesh transient local, so the mesh published once is received even when
+the recorder starts later; /tracker/hand_joints best effort, which matches any tracker). Any
+other topic is subscribed, like `ros2 bag record` does, when its first publisher is discovered
+(checked every `discovery_period` s), with the publishers' QoS: reliable unless one of them is
+best effort, transient local when all are. Messages are taken raw (CDR bytes, never
+deserialized) and written with the receive time (node clock: sim time under use_sim_time) or,
+with stamp_source=header, the header stamp of messages that have one.
+
+Stopping: SIGINT or SIGTERM ends spin; close() writes the pending chunk, the summary and
+metadata.yaml, so every message that reached a callback is in the bag.
+SIGKILL cannot be caught: the mcap then has no summary and no metadata.yaml, but every chunk
+written before the kill is intact. The pending chunk is written every `flush_period` s (default
+1 s), so a SIGKILL loses at most about that much. Recover with
+`python -m softhand_sim.bagio recover BROKEN.mcap NEW_BAG` (softhand_sim.bagio.recover_mcap,
+it streams the intact chunks into a new bag) or `ros2 bag reindex` where ROS is installed.
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import time
+
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+
+from softhand_sim.ros_common import (LATCHED_TOPICS, TOPIC_TYPES, message_class, run_node,
+                                     split_cli)
+from softhand_sim.params import ParamError
+from softhand_sim.ros_params import declare_node_params
+from softhand_sim.bagio import BagError, add_topic, flush_chunk, known_type, open_writer
+
+#: Default topic list: every softhand topic of INTERFACE.md but the heavy /hand/skin_vertices.
+DEFAULT_TOPICS = [t for t in TOPIC_TYPES if t != "/hand/skin_vertices"]
+
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(
+        prog="softhand-record",
+        description="Record softhand topics into a rosbag2 directory (mcap storage, schemas included) "
+                    "that ros2 bag info/play and Foxglove open. Stop with Ctrl-C or SIGTERM.",
+        epilog="ROS parameters: output, topics, record_skin_vertices, progress_period, flush_period, "
+               "discovery_period, stamp_source (--ros-args -p NAME:=VALUE); flags override them.")
+    p.add_argument("-o", "--output", default=None, help="rosbag2 directory to create (must not exist)")
+    p.add_argument("--topics", nargs="+", default=None, metavar="TOPIC",
+                   help="topics to record (default: every softhand topic but /hand/skin_vertices)")
+    p.add_argument("--skin-vertices", dest="record_skin_vertices", action="store_true", default=None,
+                   help="also record /hand/skin_vertices")
+    p.add_argument("--stamp-source", dest="stamp_source", choices=("receive", "header"), default=None,
+                   help="bag timestamp of each message (default: receive time)")
+    return p
+
+
+def header_stamp_ns(raw: bytes):
+    """Header stamp [ns] of a CDR message that starts with std_msgs/Header, else None.
+
+    CDR: 4-byte encapsulation (byte 1: 0x01 little endian), then Header.stamp = sec int32,
+    nanosec uint32. Only used for types known to start with a Header.
+    """
+    if len(raw) < 12:
+        return None
+    order = "little" if raw[1] & 1 else "big"
+    sec = int.from_bytes(raw[4:8], order, signed=True)
+    nsec = int.from_bytes(raw[8:12], order, signed=False)
+    return sec * 1_000_000_000 + nsec
+
+
+class RecordNode(Node):
+    """Subscriptions appear with their publishers; each raw message goes straight into the writer."""
+
+    def __init__(self, overrides: dict | None = None):
+        super().__init__("record_node")
+        cfg = declare_node_params(self, "record_node")  # schema: softhand_sim/params.py
+        cfg.update({k: v for k, v in (overrides or {}).items() if v is not None})
+        if cfg["stamp_source"] not in ("receive", "header"):
+            raise BagError(f"stamp_source must be 'receive' or 'header', got {cfg['stamp_source']!r}")
+        topics = [t for t in cfg["topics"] if t] or list(DEFAULT_TOPICS)
+        if cfg["record_skin_vertices"] and "/hand/skin_vertices" not in topics:
+            topics.append("/hand/skin_vertices")
+        self.wanted = list(dict.fromkeys(topics))
+        output = cfg["output"] or os.path.join("runs", time.strftime("%Y%m%d-%H%M%S"), "bag")
+        self.writer = open_writer(output, "mcap")
+        self.output = output
+        self.cfg = cfg
+        self.subs, self.conns, self.counts = {}, {}, {}
+        self.bytes = 0
+        self.header_types = set()
+        self._closed = False
+        self.create_timer(cfg["discovery_period"], self._discover)
+        self.create_timer(cfg["flush_period"], lambda: flush_chunk(self.writer))
+        self.create_timer(cfg["progress_period"], self._progress)
+        self.get_logger().info(f"recording into {output}: {', '.join(self.wanted)}")
+        self._discover()
+
+    # --------------------------------------------------------------------------- subscriptions
+
+    def _qos_for(self, topic: str) -> QoSProfile:
+        """Adapt to the publishers like rosbag2: best effort if any is, transient local if all are."""
+        infos = self.get_publishers_info_by_topic(topic)
+        best_effort = any(i.qos_profile.reliability == ReliabilityPolicy.BEST_EFFORT for i in infos)
+        latched = bool(infos) and all(i.qos_profile.durability == DurabilityPolicy.TRANSIENT_LOCAL for i in infos)
+        return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000,
+                          reliability=ReliabilityPolicy.BEST_EFFORT if best_effort else ReliabilityPolicy.RELIABLE,
+                          durability=DurabilityPolicy.TRANSIENT_LOCAL if latched else DurabilityPolicy.VOLATILE)
+
+    def _known_qos(self, topic: str) -> QoSProfile:
+        """QoS for an INTERFACE.md topic, subscribed before any publisher is seen."""
+        latched = topic in LATCHED_TOPICS
+        best_effort = topic == "/tracker/hand_joints"  # trackers may publish sensor-data QoS
+        return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1 if latched else 1000,
+                          reliability=ReliabilityPolicy.BEST_EFFORT if best_effort else ReliabilityPolicy.RELIABLE,
+                          durability=DurabilityPolicy.TRANSIENT_LOCAL if latched else DurabilityPolicy.VOLATILE)
+
+    def _discover(self) -> None:
+        graph = None
+        for topic in self.wanted:
+            if topic in self.subs:
+                continue
+            if topic in TOPIC_TYPES:  # known type: subscribe now, miss nothing at start
+                self._subscribe(topic, TOPIC_TYPES[topic], self._known_qos(topic))
+                continue
+            if graph is None:
+                graph = dict(self.get_topic_names_and_types())
+            if topic not in graph or not self.count_publishers(topic):
+                continue
+            types = graph[topic]
+            if len(types) > 1:
+                self.get_logger().warn(f"{topic} has several types {types}; recording {types[0]}")
+            self._subscribe(topic, types[0], self._qos_for(topic))
+
+    def _subscribe(self, topic: str, msgtype: str, qos: QoSProfile) -> None:
+        if not known_type(msgtype):
+            self.get_logger().error(f"cannot record {topic}: type {msgtype} has no schema in the typestore")
+            self.subs[topic] = None
+            return
+        cls = message_class(msgtype)
+        if cls.get_fields_and_field_types().get("header") == "std_msgs/Header":
+            self.header_types.add(topic)
+        self.conns[topic] = add_topic(self.writer, topic, msgtype)
+        self.counts[topic] = 0
+        self.subs[topic] = self.create_subscription(cls, topic, self._make_callback(topic), qos, raw=True)
+        self.get_logger().info(
+            f"subscribed {topic} [{msgtype}] "
+            f"({'best effort' if qos.reliability == ReliabilityPolicy.BEST_EFFORT else 'reliable'}"
+            f"{', transient local' if qos.durability == DurabilityPolicy.TRANSIENT_LOCAL else ''})")
+
+    def _make_callback(self, topic: str):
+        conn = self.conns[topic]
+        use_header = self.cfg["stamp_source"] == "header" and topic in self.header_types
+
+        def on_message(raw: bytes) -> None:
+            if self._closed:
+                return
+            stamp = header_stamp_ns(raw) if use_header else None
+            if stamp is None:
+                stamp = self.get_clock().now().nanoseconds
+            self.writer.write(conn, stamp, raw)
+            self.counts[topic] += 1
+            self.bytes += len(raw)
+
+        return on_message
+
+    # --------------------------------------------------------------------------------- logging
+
+    def _progress(self) -> None:
+        total = sum(self.counts.values())
+        self.get_logger().info(f"{total} messages, {self.bytes / 1e6:.1f} MB on {len(self.conns)} topics")
+
+    def close(self) -> None:
+        """Finish the bag (pending chunk, summary, metadata.yaml); safe to call twice."""
+        if self._closed:
+            return
+        self._closed = True
+        self.writer.close()
+        counts = ", ".join(f"{t}: {n}" for t, n in self.counts.items()) or "nothing"
+        print(f"[record_node] wrote {self.output} ({sum(self.counts.values())} messages, "
+              f"{self.bytes / 1e6:.1f} MB; {counts})", file=sys.stderr, flush=True)
+
+
+def main(args=None) -> None:
+    ns, argv = split_cli(build_parser(), args)
+    overrides = {"output": ns.output, "topics": ns.topics, "record_skin_vertices": ns.record_skin_vertices,
+                 "stamp_source": ns.stamp_source}
+    try:
+        code = run_node(lambda: RecordNode(overrides), init_args=argv, drain_s=2.0)
+    except (BagError, ParamError) as exc:
+        print(f"softhand-record: error: {exc}", file=sys.stderr, flush=True)
+        code = 1
+    sys.exit(code)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,174 @@
+"""tracking_node: the 250 Hz intermediate-bone loop of paper Sect. 3.6 as a ROS 2 node.
+
+    ros2 run softhand_tracking tracking_node [--ros-args -p hand:=left -p rate:=250.0 ...]
+    softhand-tracking
+
+Subscribes /tracker/hand_joints (PoseArray of 26 OpenXR joints, best effort) and /hand/bones
+(PoseArray of 16, latest only); publishes /hand/intermediate_bones (PoseArray of 16, frame world,
+stamped with the node-clock time of its step) from a timer at `rate`, and /diagnostics at
+`diagnostics_rate`: achieved step rate, timer period p50/p99 and jitter, compute per step, steps
+run late (a late timer callback runs the steps it missed, so the rate holds on a busy machine) or
+skipped, tracker frames accepted and rejected by reason, time since the last valid tracker frame,
+dropout holds. Nothing is published before the
+first valid tracker frame. The physics and bookkeeping live in `loop.TrackingLoop`; this node
+converts messages, owns the timers and parameters. Honours use_sim_time (all times are the node
+clock's); Ctrl-C / SIGTERM exit 0.
+"""
+from __future__ import annotations
+
+import argparse
+import gc
+import time
+from collections import deque
+
+import numpy as np
+from geometry_msgs.msg import PoseArray
+from rclpy.node import Node
+
+from softhand_sim.ros_common import (LATEST_QOS, PUB_QOS, SENSOR_QOS, DiagnosticsPublisher, RateMeter,
+                                     fail, run_node, split_cli)
+from softhand_sim.ros_msgs import pose_array_from_numpy, pose_array_to_numpy, stamp_to_seconds
+from softhand_sim.ros_params import declare_node_params
+from softhand_tracking.adapter import AdapterConfig, TrackerAdapter
+from softhand_tracking.loop import LoopConfig, TrackingLoop, warm_up
+
+NODE_NAME = "tracking_node"
+# A late timer callback runs the steps it missed (each published, stamped with its own time) so the
+# loop keeps `rate` on average on a busy machine; more than this far behind, it skips ahead.
+MAX_CATCH_UP_S = 0.1
+
+
+class TrackingNode(Node):
+    def __init__(self):
+        super().__init__(NODE_NAME)
+        p = declare_node_params(self, NODE_NAME)
+        if len(p["tracker_to_world"]) != 7:
+            raise ValueError(f"{NODE_NAME}: parameter 'tracker_to_world' must be 7 numbers "
+                             f"[px py pz qx qy qz qw], got {p['tracker_to_world']!r}")
+        adapter = TrackerAdapter(AdapterConfig(
+            hand=p["hand"], world_from_tracker=np.asarray(p["tracker_to_world"], dtype=float),
+            bone_length_min=p["min_bone_length"], bone_length_max=p["max_bone_length"]))
+        loop_config = LoopConfig(rate=p["rate"], tracked_kx=p["tracked_kx"], tracked_ktheta=p["tracked_ktheta"],
+                                 sim_kx=p["sim_kx"], sim_ktheta=p["sim_ktheta"], damping_ratio=p["damping_ratio"])
+        self.loop = TrackingLoop(loop_config, adapter, tracker_timeout=p["tracker_timeout"],
+                                 sim_timeout=p["sim_timeout"])
+        warm_up()  # numba kernels compiled/loaded before the first frame, not during it
+        self.pub = self.create_publisher(PoseArray, "/hand/intermediate_bones", PUB_QOS)
+        self.create_subscription(PoseArray, "/tracker/hand_joints", self.on_tracker, SENSOR_QOS)
+        self.create_subscription(PoseArray, "/hand/bones", self.on_sim_bones, LATEST_QOS)
+        self.rate_meter = RateMeter(window=int(5 * p["rate"]))
+        self.step_ms = deque(maxlen=int(5 * p["rate"]))
+        self.published = 0
+        self.late_steps = 0       # steps run late by a catch-up
+        self.skipped_steps = 0    # steps given up (more than MAX_CATCH_UP_S behind)
+        self.bad_sim_messages = 0
+        self.period_ns = int(round(1e9 / p["rate"]))
+        self.max_catch_up = max(1, int(MAX_CATCH_UP_S * p["rate"]))
+        self.next_step_ns = None  # node-clock time of the next step
+        self.step_count = 0
+        self._diag_mark = (time.monotonic(), 0)
+        self.timer = self.create_timer(1.0 / p["rate"], self.on_timer)
+        DiagnosticsPublisher(self, self.collect_diagnostics, period=1.0 / p["diagnostics_rate"])
+        # Objects made so far (rclpy, numba, numpy) live for the whole run: freezing them keeps the
+        # collector's full passes from walking them, which otherwise stalls the loop ~50 ms.
+        gc.collect()
+        gc.freeze()
+        self.get_logger().info(f"tracking {p['hand']} hand at {p['rate']:.0f} Hz; waiting for /tracker/hand_joints")
+
+    def now_s(self) -> float:
+        return self.get_clock().now().nanoseconds * 1e-9
+
+    def on_tracker(self, msg: PoseArray) -> None:
+        joints = pose_array_to_numpy(msg)
+        was_holding = self.loop.holding
+        if self.loop.on_tracker(joints, self.now_s(), stamp_to_seconds(msg.header.stamp)) and was_holding:
+            self.get_logger().info("tracker frames are back: tracking resumed")
+
+    def on_sim_bones(self, msg: PoseArray) -> None:
+        try:
+            self.loop.on_sim_bones(pose_array_to_numpy(msg), self.now_s())
+        except ValueError as exc:
+            self.bad_sim_messages += 1
+            self.get_logger().warn(f"ignored /hand/bones: {exc}", throttle_duration_sec=5.0)
+
+    def on_timer(self) -> None:
+        self.rate_meter.tick()
+        now_ns = self.get_clock().now().nanoseconds
+        if self.next_step_ns is None or now_ns < self.next_step_ns - 2 * self.period_ns:
+            self.next_step_ns = now_ns  # first call, or the (sim) clock went backwards
+        steps = 0
+        while self.next_step_ns <= now_ns and steps < self.max_catch_up:
+            self.run_step(self.next_step_ns)
+            self.next_step_ns += self.period_ns
+            steps += 1
+        self.late_steps += max(0, steps - 1)
+        if self.next_step_ns <= now_ns:  # hopelessly behind (stalled process, clock jump)
+            missed = (now_ns - self.next_step_ns) // self.period_ns + 1
+            self.skipped_steps += int(missed)
+            self.next_step_ns += int(missed) * self.period_ns
+
+    def run_step(self, t_ns: int) -> None:
+        """One loop step at node-clock time t_ns; publishes the bones stamped t_ns."""
+        was_holding = self.loop.holding
+        t0 = time.perf_counter()
+        poses = self.loop.step(t_ns * 1e-9)
+        self.step_ms.append(1e3 * (time.perf_counter() - t0))
+        self.step_count += 1
+        if self.loop.holding and not was_holding:
+            self.get_logger().warn(f"no valid tracker frame for {self.loop.tracker_timeout:.3f} s: holding the last target")
+        if poses is None or not np.all(np.isfinite(poses)):
+            return  # nothing to publish before the first frame; never a non-finite pose
+        self.pub.publish(pose_array_from_numpy(poses, int(t_ns)))
+        self.published += 1
+
+    def collect_diagnostics(self):
+        now = self.now_s()
+        stats = self.rate_meter.stats()
+        steps = np.asarray(self.step_ms) if self.step_ms else np.full(1, np.nan)
+        adapter = self.loop.adapter
+        since = self.loop.time_since_tracker(now)
+        mark_t, mark_steps = self._diag_mark
+        wall = time.monotonic()
+        self._diag_mark = (wall, self.step_count)
+        values = {
+            "rate_hz": (self.step_count - mark_steps) / (wall - mark_t) if wall > mark_t else 0.0,
+            "timer_rate_hz": stats["rate_hz"], "period_p50_ms": stats["period_p50_ms"],
+            "period_p99_ms": stats["period_p99_ms"], "jitter_p99_ms": stats["jitter_p99_ms"],
+            "step_ms_p50": float(np.median(steps)), "step_ms_p99": float(np.percentile(steps, 99)),
+            "published": self.published, "late_steps": self.late_steps, "skipped_steps": self.skipped_steps,
+            "frames_accepted": adapter.accepted,
+            "frames_rejected": sum(adapter.rejected.values()),
+            **{f"rejected_{reason}": n for reason, n in adapter.rejected.items()},
+            "time_since_tracker_s": since if np.isfinite(since) else -1.0,
+            "holding": self.loop.holding, "holds": self.loop.holds,
+            "sim_copy": self.loop.bones.sim_active, "bad_sim_messages": self.bad_sim_messages,
+        }
+        if not self.loop.initialized:
+            return values, "warn", "waiting for the first valid tracker frame"
+        if self.loop.holding:
+            return values, "warn", f"tracker lost for {since:.2f} s: holding the last target"
+        return values, "ok", "tracking"
+
+
+def build_parser():
+    return argparse.ArgumentParser(
+        prog="tracking_node",
+        description="softhand elastic tracking (paper Sect. 3.6): turns /tracker/hand_joints (26 OpenXR "
+                    "joints) into 16 intermediate bones integrated at `rate` (250 Hz), each coupled to its "
+                    "tracked bone and to the simulated skeleton (/hand/bones); publishes "
+                    "/hand/intermediate_bones and /diagnostics. Holds the last target during tracker "
+                    "dropouts. Parameters (defaults in config/softhand.yaml, list with `softhand params "
+                    "tracking_node`): --ros-args -p key:=value or --params-file FILE.",
+        epilog="example: softhand-tracking --ros-args -p hand:=left -p tracker_timeout:=0.2")
+
+
+def main(args=None):
+    _, argv = split_cli(build_parser(), args)
+    try:
+        return run_node(TrackingNode, init_args=argv)
+    except ValueError as exc:  # ParamError and bad settings: one line naming key and value, exit 1
+        fail(str(exc))
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

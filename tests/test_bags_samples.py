@@ -1,0 +1,149 @@
+"""Sample tracker bags in bags/: readable by rosbags and by the mcap reader, plausible hand data."""
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from mcap.reader import make_reader
+from mcap_ros2.decoder import DecoderFactory
+
+from softhand_sim.skeleton_names import OPENXR_JOINT_COUNT
+from softhand_tracking import bag_synth
+from softhand_tracking.adapter import TrackerAdapter, bone_lengths
+from softhand_sim.bagio import deserialize, read_topic
+from softhand_tracking.kinematic_hand import DEFAULT_DIMS, DIGIT_LIMITS
+
+REPO = Path(__file__).resolve().parents[1]
+BAGS = REPO / "bags"
+TOPIC = "/tracker/hand_joints"
+MSGTYPE = "geometry_msgs/msg/PoseArray"
+NAMES = ("grasp_lift", "squeeze", "press_table", "fast_dropout", "grasp_short")
+
+
+def _expected_lengths():
+    """Bone lengths (16,) of the kinematic hand the bags were made from."""
+    return np.r_[DEFAULT_DIMS.palm_length, DEFAULT_DIMS.phalanx_length.reshape(-1)]
+
+
+def _read_rosbags(name):
+    data = read_topic(BAGS / name, TOPIC, MSGTYPE)
+    msgs = [deserialize(raw, MSGTYPE) for raw in data.payloads]
+    joints = np.array([[(p.position.x, p.position.y, p.position.z) for p in m.poses] for m in msgs])
+    stamps = np.array([m.header.stamp.sec * 10**9 + m.header.stamp.nanosec for m in msgs])
+    frames = {m.header.frame_id for m in msgs}
+    counts = {len(m.poses) for m in msgs}
+    return np.array(data.stamps_ns), stamps, joints, frames, counts
+
+
+@pytest.fixture(scope="module", params=NAMES)
+def bag(request):
+    return request.param, _read_rosbags(request.param)
+
+
+def test_bags_exist_and_are_small():
+    """All five sample bags exist as mcap rosbag2 directories, together under 10 MB."""
+    total = 0
+    for name in NAMES:
+        files = {p.suffix for p in (BAGS / name).iterdir()}
+        assert files == {".yaml", ".mcap"}, (name, files)
+        total += sum(p.stat().st_size for p in (BAGS / name).iterdir())
+    assert total < 10e6
+
+
+def test_rate_count_and_finiteness(bag):
+    """Every message: 26 finite joints, frame 'world', header stamp = bag time; mean rate
+    90-120 Hz with slight jitter (no period below 5 ms or, outside the dropout, above 15 ms)."""
+    name, (log_ns, stamp_ns, joints, frames, counts) = bag
+    assert counts == {OPENXR_JOINT_COUNT}
+    assert frames == {"world"}
+    assert np.all(np.isfinite(joints))
+    np.testing.assert_array_equal(log_ns, stamp_ns)
+    dt = np.diff(stamp_ns) * 1e-9
+    rate = (len(dt)) / ((stamp_ns[-1] - stamp_ns[0]) * 1e-9)
+    if name != "fast_dropout":
+        assert 90.0 <= rate <= 120.0, rate
+    assert dt.min() > 0.005
+    regular = dt[dt < 0.1]
+    assert 0 < regular.std() < 0.002  # jitter present, slight
+    assert regular.max() < 0.015
+    assert 90.0 <= 1.0 / np.median(regular) <= 120.0
+
+
+def test_bone_lengths_constant_within_noise(bag):
+    """Bone lengths stay those of the hand model within the position noise (std < 2.5 mm, mean
+    within 1 mm), and the adapter accepts every frame."""
+    _, (_, _, joints, _, _) = bag
+    lengths = np.array([bone_lengths(j) for j in joints])
+    assert lengths.std(axis=0).max() < 0.0025
+    np.testing.assert_allclose(lengths.mean(axis=0), _expected_lengths(), atol=0.001)
+    adapter = TrackerAdapter()
+    assert all(adapter.convert(j) is not None for j in joints[::5])
+
+
+def test_same_data_through_the_mcap_reader(bag):
+    """The mcap library with the ROS 2 decoder reads the same messages (count, joints, stamps)."""
+    name, (log_ns, _, joints, _, _) = bag
+    mcap_file = next((BAGS / name).glob("*.mcap"))
+    got = []
+    with open(mcap_file, "rb") as f:
+        reader = make_reader(f, decoder_factories=[DecoderFactory()])
+        for schema, channel, message, msg in reader.iter_decoded_messages(topics=[TOPIC]):
+            assert schema.name == MSGTYPE
+            got.append((message.log_time, [(p.position.x, p.position.y, p.position.z) for p in msg.poses]))
+    assert len(got) == len(log_ns)
+    np.testing.assert_array_equal([g[0] for g in got], log_ns)
+    np.testing.assert_array_equal(np.array([g[1] for g in got]), joints)
+
+
+def test_motions_do_what_they_say():
+    """grasp_lift lifts the wrist 10 cm; press_table takes the palm joints 3 cm below the table
+    top; fast_dropout peaks at 2 m/s and has one 300 ms gap; digit angles stay within limits."""
+    _, _, clean = bag_synth.sample("grasp_lift")
+    wrist = clean[:, 1, :3]
+    g = bag_synth.grasp_wrist()
+    assert np.isclose(wrist[:, 2].max() - g[2], 0.25, atol=1e-6)  # final retreat is the highest
+    held = wrist[(np.abs(wrist[:, 0] - g[0]) < 1e-6)]
+    assert np.isclose(held[:, 2].max() - g[2], 0.10, atol=1e-6)
+
+    _, _, clean = bag_synth.sample("press_table")
+    palm_joints = clean[:, [0, 1, 7, 12, 17, 22], 2]
+    assert np.isclose(palm_joints.min(), bag_synth.TABLE_TOP - 0.03, atol=1e-6)
+
+    stamps, _, clean = bag_synth.sample("fast_dropout")
+    t = (stamps - stamps[0]) * 1e-9
+    gaps = np.diff(t)
+    assert np.isclose(gaps.max(), 0.3, atol=0.012) and np.sum(gaps > 0.05) == 1
+    motion = bag_synth.FastMotion()
+    tt = np.linspace(0, motion.duration, 3001)
+    pos = np.array([motion(x)[0][:3] for x in tt])
+    speed = np.linalg.norm(np.diff(pos, axis=0), axis=1) / np.diff(tt)
+    assert 1.9 <= speed.max() <= 2.05, speed.max()
+
+    for name, sc in bag_synth.SCENARIOS.items():
+        motion = sc.motion()
+        for x in np.linspace(0, motion.duration, 50):
+            angles = motion(x)[1]
+            assert np.all(angles >= DIGIT_LIMITS[:, :, 0] - 1e-12) and np.all(angles <= DIGIT_LIMITS[:, :, 1] + 1e-12), name
+
+
+def test_grasp_closes_inside_the_ball():
+    """The grasp closes thumb and fingers inside the ball (every digit > 5 mm, four within 1 mm of
+    1 cm; the thumb's deepest reach from this placement is 7 mm) and
+    the squeeze 3 cm (the digits that can reach it; every digit deeper than in the grasp),
+    computed on the kinematic hand's bone capsules."""
+    pose = np.r_[bag_synth.grasp_wrist(), bag_synth.PALM_DOWN]
+    hold = bag_synth.digit_depths(pose, bag_synth.closure_for_depth(pose, 0.010))
+    assert np.sum(np.abs(hold - 0.010) < 0.001) >= 4  # thumb and three fingers
+    squeeze = bag_synth.digit_depths(pose, bag_synth.closure_for_depth(pose, 0.030))
+    assert np.sum(squeeze > 0.029) >= 2 and np.all(squeeze >= hold - 1e-9) and hold.min() > 0.005
+
+
+def test_generation_is_deterministic(tmp_path):
+    """tools/make_bags.py writes byte-identical messages to those shipped in bags/."""
+    subprocess.run([sys.executable, str(REPO / "tools" / "make_bags.py"), "--out", str(tmp_path),
+                    "--only", "grasp_short"], check=True, capture_output=True, timeout=60)
+    new = read_topic(tmp_path / "grasp_short", TOPIC, MSGTYPE)
+    old = read_topic(BAGS / "grasp_short", TOPIC, MSGTYPE)
+    assert new.stamps_ns == old.stamps_ns
+    assert new.payloads == old.payloads
