@@ -10,6 +10,7 @@ PYTHON ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.softhand-installed
+PIP_VERSION := 26.3
 export ROS_AUTOMATIC_DISCOVERY_RANGE := LOCALHOST
 export ROS_DOMAIN_ID ?= 61
 unexport ROS_LOCALHOST_ONLY
@@ -30,6 +31,9 @@ $(STAMP): requirements.lock softhand_sim/setup.py softhand_tracking/setup.py sof
 	@$(PYTHON) -c 'import sys; sys.exit(0 if sys.version_info[:2] == (3, 11) else 1)' || \
 	  echo "warning: softhand is tested on Python 3.11; on 3.12 pybullet has no wheel and builds from source (needs a C++ compiler and python3-dev)"
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
+	# a current pip: older ones (Debian's 23.x) do legacy `setup.py develop` editable installs,
+	# which put the console scripts under lib/<pkg> (the ament layout) instead of .venv/bin
+	$(BIN)/python -m pip install --quiet --disable-pip-version-check pip==$(PIP_VERSION)
 	$(BIN)/python -m pip install --quiet --disable-pip-version-check -r requirements.lock
 	$(BIN)/python -m pip install --quiet --disable-pip-version-check --no-deps --no-build-isolation \
 	  --config-settings editable_mode=compat -e ./softhand_sim -e ./softhand_tracking -e ./softhand_world

@@ -113,7 +113,7 @@ def wait_for_topics(topics, timeout, procs):
         rclpy.try_shutdown()
 
 
-def run_demo(bag, out_dir, rate=1.0, params_file=None, preview=True, startup_timeout=180.0, quiet=False):
+def run_demo(bag, out_dir, rate=1.0, params_file=None, preview=True, startup_timeout=600.0, quiet=False):
     """Run the node set over `bag`; returns the summary dict (also written to out_dir/summary.json)."""
     say = (lambda *a: None) if quiet else (lambda *a: print(*a, flush=True))
     out_dir = Path(out_dir)
