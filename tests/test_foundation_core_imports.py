@@ -8,7 +8,7 @@ import pytest
 
 PACKAGES = ("softhand_sim", "softhand_tracking", "softhand_world")
 # Module names allowed to import rclpy (DESIGN.md: nodes stay thin, the core never imports rclpy).
-ROS_MODULE_SUFFIXES = ("_node", "cli", "demo")
+ROS_MODULE_SUFFIXES = ("_node", "cli")
 ROS_MODULE_PREFIXES = ("ros_common", "ros_params")
 
 

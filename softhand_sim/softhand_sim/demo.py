@@ -21,6 +21,7 @@ from pathlib import Path
 
 from .paths import REPO_ROOT, bags_dir
 from .ros_env import apply_isolated_env, isolated_env
+from .ros_probe import wait_for_topics
 
 DEFAULT_BAG = "grasp_lift"
 # (package, executable) of every process, in start order; the launch file starts the same set
@@ -89,28 +90,6 @@ class ProcessSet:
     def tail(self, name, lines=15):
         path = self.log_dir / f"{name}.log"
         return "\n".join(path.read_text(errors="replace").splitlines()[-lines:]) if path.exists() else ""
-
-
-def wait_for_topics(topics, timeout, procs):
-    """Block until every topic has a publisher (checked from a short-lived rclpy node)."""
-    import rclpy
-
-    rclpy.init(args=[])
-    node = rclpy.create_node("softhand_demo_probe")
-    try:
-        deadline = time.monotonic() + timeout
-        while time.monotonic() < deadline:
-            missing = [t for t in topics if node.count_publishers(t) == 0]
-            if not missing:
-                return []
-            for name in procs.procs:
-                if not procs.alive(name):
-                    raise SystemExit(f"error: {name} node exited during start-up:\n{procs.tail(name)}")
-            rclpy.spin_once(node, timeout_sec=0.2)
-        return missing
-    finally:
-        node.destroy_node()
-        rclpy.try_shutdown()
 
 
 def run_demo(bag, out_dir, rate=1.0, params_file=None, preview=True, startup_timeout=600.0, quiet=False):
