@@ -149,11 +149,11 @@ def _inv3_spd(A, out):
 
 @njit(cache=True)
 def ldlt_numeric_rows(k0, k1, values, blk_slots, up_ptr, up_row, up_slot, row_ptr, row_col,
-                      row_slot, Lp, Li, Lx, LxR, Dinv, Y):
+                      row_slot, Lp, Li, Lx, Dinv, Y):
     """Block rows k0..k1-1 of the block LDLᵀ (3x3 blocks, up-looking): P A Pᵀ = L D Lᵀ with L unit
     block-lower, D block-diagonal SPD. Rows < k0 must be done (they are read). With y_i = D_i L_kiᵀ
     from L y = A[:k, k]:  L_ki = y_iᵀ D_i⁻¹,  D_k = A_kk - sum_i L_ki y_i.
-    L goes to Lx (by columns, (nnzL,3,3)) and LxR (by rows, the order of row_col); Dinv (nb,3,3)
+    L goes to Lx (by columns, (nnzL,3,3)); Dinv (nb,3,3)
     holds D_k⁻¹. Y (nb,3,3) is zero scratch and is left zero. Returns the count of D_k blocks that
     were not positive definite (replaced by their inverse |diagonal|; 0 for an SPD matrix)."""
     bad = 0
@@ -191,9 +191,7 @@ def ldlt_numeric_rows(k0, k1, values, blk_slots, up_ptr, up_row, up_slot, row_pt
             for a in range(3):  # L_ki = y_iᵀ D_i⁻¹ (row a of L_ki = column a of y_i times D_i⁻¹)
                 ya0, ya1, ya2 = (y00, y01, y02)[a], (y10, y11, y12)[a], (y20, y21, y22)[a]
                 for b in range(3):
-                    lab = ya0 * Di[0, b] + ya1 * Di[1, b] + ya2 * Di[2, b]
-                    Lx[pe, a, b] = lab
-                    LxR[t, a, b] = lab
+                    Lx[pe, a, b] = ya0 * Di[0, b] + ya1 * Di[1, b] + ya2 * Di[2, b]
             for a in range(3):  # D_k -= L_ki y_i
                 l0, l1, l2 = Lx[pe, a, 0], Lx[pe, a, 1], Lx[pe, a, 2]
                 Dk[a, 0] -= l0 * y00 + l1 * y10 + l2 * y20
@@ -205,28 +203,27 @@ def ldlt_numeric_rows(k0, k1, values, blk_slots, up_ptr, up_row, up_slot, row_pt
 
 
 @njit(cache=True)
-def ldlt_solve(Lp, Li, Lx, row_ptr, row_col, LxR, Dinv, perm, tmp, r, z):
+def ldlt_solve(Lp, Li, Lx, Dinv, perm, tmp, r, z):
     """z = A⁻¹ r with P A Pᵀ = L D Lᵀ in 3x3 blocks (L unit block-lower without its diagonal, by
-    block rows for the forward pass and by block columns for the backward one: both gather).
+    block columns: the forward pass scatters each finished block of w down its column, the
+    backward one gathers; one copy of L serves both, so each pass streams L once).
     tmp: (3 nb,) scratch."""
     nb = perm.shape[0]
-    for k in range(nb):  # L w = P r
+    for k in range(nb):
         o = 3 * perm[k]
-        w0, w1, w2 = r[o], r[o + 1], r[o + 2]
-        for t in range(row_ptr[k], row_ptr[k + 1]):
-            c = 3 * row_col[t]
-            x0, x1, x2 = tmp[c], tmp[c + 1], tmp[c + 2]
-            w0 -= LxR[t, 0, 0] * x0 + LxR[t, 0, 1] * x1 + LxR[t, 0, 2] * x2
-            w1 -= LxR[t, 1, 0] * x0 + LxR[t, 1, 1] * x1 + LxR[t, 1, 2] * x2
-            w2 -= LxR[t, 2, 0] * x0 + LxR[t, 2, 1] * x1 + LxR[t, 2, 2] * x2
-        tmp[3 * k] = w0
-        tmp[3 * k + 1] = w1
-        tmp[3 * k + 2] = w2
-    for k in range(nb):  # u = D⁻¹ w
-        o = 3 * k
+        tmp[3 * k] = r[o]
+        tmp[3 * k + 1] = r[o + 1]
+        tmp[3 * k + 2] = r[o + 2]
+    for i in range(nb):  # L w = P r, then u_i = D_i⁻¹ w_i as soon as w_i is final
+        o = 3 * i
         w0, w1, w2 = tmp[o], tmp[o + 1], tmp[o + 2]
+        for p in range(Lp[i], Lp[i + 1]):  # w_r -= L_ri w_i
+            c = 3 * Li[p]
+            tmp[c] -= Lx[p, 0, 0] * w0 + Lx[p, 0, 1] * w1 + Lx[p, 0, 2] * w2
+            tmp[c + 1] -= Lx[p, 1, 0] * w0 + Lx[p, 1, 1] * w1 + Lx[p, 1, 2] * w2
+            tmp[c + 2] -= Lx[p, 2, 0] * w0 + Lx[p, 2, 1] * w1 + Lx[p, 2, 2] * w2
         for a in range(3):
-            tmp[o + a] = Dinv[k, a, 0] * w0 + Dinv[k, a, 1] * w1 + Dinv[k, a, 2] * w2
+            tmp[o + a] = Dinv[i, a, 0] * w0 + Dinv[i, a, 1] * w1 + Dinv[i, a, 2] * w2
     for i in range(nb - 1, -1, -1):  # Lᵀ x = u: x_i = u_i - sum_r L_riᵀ x_r
         o = 3 * i
         u0, u1, u2 = tmp[o], tmp[o + 1], tmp[o + 2]

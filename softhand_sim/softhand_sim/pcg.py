@@ -35,8 +35,8 @@ class Factor:
         self.sym = None
         e_i, e_f = np.zeros(1, np.int32), np.zeros((1, 3, 3))
         nb = n // 3
-        self.arrays = (np.zeros(nb + 1, np.int32), e_i, e_f, np.zeros(nb + 1, np.int32), e_i, e_f,
-                       np.tile(np.eye(3), (nb, 1, 1)), np.arange(nb, dtype=np.int32), np.zeros(n))
+        self.arrays = (np.zeros(nb + 1, np.int32), e_i, e_f, np.tile(np.eye(3), (nb, 1, 1)),
+                       np.arange(nb, dtype=np.int32), np.zeros(n))
         self.slice_flops, self.max_slices = slice_flops, max_slices
         if indptr is not None:
             self.analyse(indptr, indices)
@@ -60,8 +60,8 @@ class Factor:
         self.slices = int(np.clip(want, 1, self.max_slices))
         self.bounds = sym.chunks(self.slices)
         self.slices = len(self.bounds) - 1
-        self._buf = [(np.zeros((sym.nnz_L, 3, 3)), np.zeros((sym.nnz_L, 3, 3)),
-                      np.tile(np.eye(3), (sym.nb, 1, 1))) for _ in range(2)]
+        self._buf = [(np.zeros((sym.nnz_L, 3, 3)), np.tile(np.eye(3), (sym.nb, 1, 1)))
+                     for _ in range(2)]
         self._snap = np.zeros(len(indices))
         self._y = np.zeros((sym.nb, 3, 3))
         self._tmp = np.zeros(self.n)
@@ -72,16 +72,16 @@ class Factor:
     def _run_slice(self, s):
         from .ldlt import ldlt_numeric_rows
         sym = self.sym
-        Lx, LxR, Dinv = self._buf[1 - self._active]
+        Lx, Dinv = self._buf[1 - self._active]
         self.bad_pivots += ldlt_numeric_rows(
             int(self.bounds[s]), int(self.bounds[s + 1]), self._snap, sym.blk_slots, sym.up_ptr, sym.up_row,
-            sym.up_slot, sym.row_ptr, sym.row_col, sym.row_slot, sym.Lp, sym.Li, Lx, LxR, Dinv, self._y)
+            sym.up_slot, sym.row_ptr, sym.row_col, sym.row_slot, sym.Lp, sym.Li, Lx, Dinv, self._y)
 
     def _publish(self):
         self._active = 1 - self._active
-        Lx, LxR, Dinv = self._buf[self._active]
+        Lx, Dinv = self._buf[self._active]
         sym = self.sym
-        self.arrays = (sym.Lp, sym.Li, Lx, sym.row_ptr, sym.row_col, LxR, Dinv, sym.perm, self._tmp)
+        self.arrays = (sym.Lp, sym.Li, Lx, Dinv, sym.perm, self._tmp)
         self.valid = True
 
     def refresh(self, indptr, indices, values):
@@ -110,13 +110,46 @@ class Factor:
         return published
 
 
+def triplet_pattern(indptr, indices):
+    """True when every row of the CSR pattern is a run of column triplets (3c, 3c+1, 3c+2): the
+    model's patterns are (whole node and body blocks), and csr_matvec3 relies on it."""
+    indptr = np.asarray(indptr, np.int64)
+    c = np.asarray(indices, np.int64)
+    if np.any(np.diff(indptr) % 3) or len(c) % 3:
+        return False
+    return bool(np.all(c[0::3] % 3 == 0) and np.all(c[1::3] == c[0::3] + 1)
+                and np.all(c[2::3] == c[0::3] + 2))
+
+
+_U = np.uint64
+
+
 @njit(cache=True)
 def csr_matvec(indptr, indices, values, x, out):
+    """out = A x (any CSR pattern). Indices are cast to unsigned: a signed index makes numba test
+    it for negative (wrap-around) values at every gather."""
     for i in range(indptr.shape[0] - 1):
         acc = 0.0
-        for k in range(indptr[i], indptr[i + 1]):
-            acc += values[k] * x[indices[k]]
+        for k in range(_U(indptr[i]), _U(indptr[i + 1])):
+            acc += values[k] * x[_U(indices[k])]
         out[i] = acc
+
+
+@njit(cache=True)
+def csr_matvec3(indptr, indices, values, x, out):
+    """out = A x for a pattern made of column triplets (triplet_pattern): one index read per
+    triplet and three independent partial sums (a single running sum is latency-bound)."""
+    one, two, three = _U(1), _U(2), _U(3)
+    for i in range(indptr.shape[0] - 1):
+        a0 = 0.0
+        a1 = 0.0
+        a2 = 0.0
+        for k in range(_U(indptr[i]), _U(indptr[i + 1]), three):
+            c = _U(indices[k])
+            a0 += values[k] * x[c]
+            a1 += values[k + one] * x[c + one]
+            a2 += values[k + two] * x[c + two]
+        out[i] = (a0 + a1) + a2
 
 
 @njit(cache=True)
@@ -171,7 +204,7 @@ def build_block_jacobi(values, node_slots, body_slots, node_inv, body_inv):
 @njit(cache=True)
 def _apply_precond(kind, r, z, diag_inv, node_inv, body_inv, body_dof0, fac):
     if kind == PRECOND_FACTOR:
-        ldlt_solve(fac[0], fac[1], fac[2], fac[3], fac[4], fac[5], fac[6], fac[7], fac[8], r, z)
+        ldlt_solve(fac[0], fac[1], fac[2], fac[3], fac[4], fac[5], r, z)
         return
     if kind == PRECOND_JACOBI:
         for i in range(r.shape[0]):
@@ -193,9 +226,11 @@ def _apply_precond(kind, r, z, diag_inv, node_inv, body_inv, body_dof0, fac):
 
 @njit(cache=True)
 def pcg(indptr, indices, values, b, x, tol, max_iter, kind, diag_slot, node_slots, body_slots,
-        body_dof0, diag_inv, node_inv, body_inv, r, z, p, Ap, fac):
+        body_dof0, diag_inv, node_inv, body_inv, r, z, p, Ap, fac, triplets=False):
     """Solve A x = b in place from the warm start x. Stops when ||r|| <= tol ||b|| or after
-    max_iter iterations. fac: Factor.arrays (used by PRECOND_FACTOR). Returns (iterations, relative residual ||r||/||b||, hit_cap)."""
+    max_iter iterations. fac: Factor.arrays (used by PRECOND_FACTOR). triplets: the pattern is
+    made of column triplets (triplet_pattern; faster products). Returns (iterations, relative
+    residual ||r||/||b||, hit_cap)."""
     n = b.shape[0]
     if kind == PRECOND_JACOBI:
         for i in range(n):
@@ -206,7 +241,10 @@ def pcg(indptr, indices, values, b, x, tol, max_iter, kind, diag_slot, node_slot
     bnorm = np.sqrt(np.dot(b, b))
     if bnorm == 0.0:
         bnorm = 1.0
-    csr_matvec(indptr, indices, values, x, Ap)
+    if triplets:
+        csr_matvec3(indptr, indices, values, x, Ap)
+    else:
+        csr_matvec(indptr, indices, values, x, Ap)
     for i in range(n):
         r[i] = b[i] - Ap[i]
     rnorm = np.sqrt(np.dot(r, r))
@@ -217,7 +255,10 @@ def pcg(indptr, indices, values, b, x, tol, max_iter, kind, diag_slot, node_slot
     rz = np.dot(r, z)
     it = 0
     while it < max_iter:
-        csr_matvec(indptr, indices, values, p, Ap)
+        if triplets:
+            csr_matvec3(indptr, indices, values, p, Ap)
+        else:
+            csr_matvec(indptr, indices, values, p, Ap)
         pAp = np.dot(p, Ap)
         if pAp <= 0.0:
             break

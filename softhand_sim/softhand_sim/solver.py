@@ -130,6 +130,11 @@ class Solver:
         self.terms = []
         self.step_terms = []
         self.last_stats = StepStats()
+        # fused rotation + tissue kernel when K0 is the isotropic stiffness of the params (always,
+        # for build_model's models); the K0 kernels otherwise
+        self._lame = tissue.lame(float(p["youngs_modulus"]), float(p["poisson_ratio"]))
+        self._triplets = pcg_mod.triplet_pattern(m.indptr, m.indices)
+        self._fused_tissue = tissue.is_isotropic_K0(m.tet_K0, m.tet_Dm_inv, m.tet_volume, *self._lame)
 
     # ---- targets (Eq. 14)
     def _set_targets(self, first, poses):
@@ -171,9 +176,15 @@ class Solver:
         g, vals, b0 = self.grad, self.values, m.body_dof0
         g[:] = 0.0
         vals[:] = 0.0
-        tissue.update_rotations(state.node_x, m.tets, m.tet_Dm_inv, state.tet_q, int(p["polar_iterations"]))
-        e = tissue.add_all(state.node_x, m.node_rest, m.tets, m.tet_K0, m.tet_volume, state.tet_q,
-                           float(p["nonlinear_k"]), float(p["nonlinear_w_max"]), g, m.tet_slots, vals)
+        if self._fused_tissue:
+            e = tissue.add_all_fused(state.node_x, m.tets, m.tet_Dm_inv, m.tet_volume, self._lame[0],
+                                     self._lame[1], state.tet_q, int(p["polar_iterations"]),
+                                     float(p["nonlinear_k"]), float(p["nonlinear_w_max"]), g,
+                                     m.tet_slots, vals)
+        else:
+            tissue.update_rotations(state.node_x, m.tets, m.tet_Dm_inv, state.tet_q, int(p["polar_iterations"]))
+            e = tissue.add_all(state.node_x, m.node_rest, m.tets, m.tet_K0, m.tet_volume, state.tet_q,
+                               float(p["nonlinear_k"]), float(p["nonlinear_w_max"]), g, m.tet_slots, vals)
         e += joints.add_all(state.body_x, state.body_q, m.joint_parent, m.joint_child,
                             m.joint_r_parent, m.joint_r_child, float(p["joint_stiffness"]),
                             m.joint_rest_rotation, m.jrow_joint, m.jrow_axis, m.jrow_lo, m.jrow_hi,
@@ -212,7 +223,8 @@ class Solver:
         iters, res, cap = pcg_mod.pcg(
             m.indptr, m.indices, self.values, self.rhs, state.v, self.cg_tol, self.cg_max_iter,
             self.precond, m.diag_slot, m.node_slots, m.body_slots, m.body_dof0, self._diag_inv,
-            self._node_inv, self._body_inv, self._r, self._z, self._p, self._Ap, self.factor.arrays)
+            self._node_inv, self._body_inv, self._r, self._z, self._p, self._Ap, self.factor.arrays,
+            self._triplets)
         self._last_iters = iters
         _advance(state.node_x, state.v, state.body_x, state.body_q, state.body_pose,
                  m.body_com_local, dt, m.body_dof0)

@@ -188,23 +188,41 @@ def add_hessian(node_x, body_x, body_q, contact_count, contact_nodes, contact_ba
             row = dofs[p]
             if row < 0 or (p < 12 and contact_bary[c, p // 3] == 0.0):
                 continue
-            for q in range(CONTACT_DOFS):
-                col = dofs[q]
-                if col < 0 or H[p, q] == 0.0:
+            end = indptr[row + 1]
+            for q0 in range(0, CONTACT_DOFS, 3):  # column triplets: one search per node / body part
+                col = dofs[q0]
+                if col < 0 or (H[p, q0] == 0.0 and H[p, q0 + 1] == 0.0 and H[p, q0 + 2] == 0.0):
                     continue
-                # binary search in the sorted row
+                # binary search in the sorted row for the triplet's first column
                 lo = indptr[row]
-                hi = indptr[row + 1]
+                hi = end
                 while lo < hi:
                     mid = (lo + hi) // 2
                     if indices[mid] < col:
                         lo = mid + 1
                     else:
                         hi = mid
-                if lo < indptr[row + 1] and indices[lo] == col:
-                    values[lo] += H[p, q]
-                else:
-                    skipped += 1
+                for j in range(3):
+                    h = H[p, q0 + j]
+                    if h == 0.0:
+                        continue
+                    # the pattern holds whole triplets, so col + j sits at lo + j when present
+                    k = lo + j
+                    if k < end and indices[k] == col + j:
+                        values[k] += h
+                    else:  # not laid out as a triplet: search it on its own
+                        k2 = indptr[row]
+                        hi2 = end
+                        while k2 < hi2:
+                            mid = (k2 + hi2) // 2
+                            if indices[mid] < col + j:
+                                k2 = mid + 1
+                            else:
+                                hi2 = mid
+                        if k2 < end and indices[k2] == col + j:
+                            values[k2] += h
+                        else:
+                            skipped += 1
     return skipped
 
 
