@@ -66,23 +66,24 @@ def test_guard_rejects_diverged_step_and_restores(runtime):
     assert not runtime.step(DT, 4 * DT).rejected and good is not None
 
 
-def test_teleport_of_the_target_stays_bounded(runtime):
-    """A 1 m jump of the targets: elastic tracking keeps the motion bounded and finite (Sect. 3.6)."""
+def test_teleport_of_the_target_stays_bounded(runtime, params):
+    """A 1 m jump of the targets: the hand's kinetic energy never exceeds the energy the palm
+    spring received, 1/2 kx d^2 (backward Euler only dissipates), nothing diverges (Sect. 3.6)."""
     targets = hover_targets(runtime)
     runtime.set_bone_targets(targets)
     for i in range(10):
         runtime.step(DT, i * DT)
+    jump = 1.0
     jumped = targets.copy()
-    jumped[:, 0] += 1.0
+    jumped[:, 0] += jump
     runtime.set_bone_targets(jumped)
-    speeds = []
+    spring_energy = 0.5 * params["tracking_kx"] * jump ** 2
+    peak = 0.0
     for i in range(10, 130):
         out = runtime.step(DT, i * DT)
-        assert np.all(np.isfinite(out.bone_poses))
-        speeds.append(np.abs(runtime.state.body_v[:16, :3]).max())
-    # a 50 N/m spring on a ~0.4 kg hand: peak speed ~ 1 m * sqrt(k/m) ~ 11 m/s at most, no blow-up
-    assert max(speeds) < 15.0
-    assert runtime.diagnostics()["rejected_steps"] == 0
+        assert np.all(np.isfinite(out.bone_poses)) and not out.rejected
+        peak = max(peak, runtime.solver.kinetic_energy(runtime.state))
+    assert 0.0 < peak <= spring_energy * 1.01, (peak, spring_energy)
     # and the palm has moved most of the way toward the new target after 2 s
     assert runtime.state.bone_pose[0, 0] - targets[0, 0] > 0.5
 
