@@ -8,7 +8,7 @@ import pytest
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO / "tests"))
 
-from softhand_sim.ros_env import apply_isolated_env, isolated_env  # noqa: E402
+from softhand_sim.ros_env import apply_isolated_env, isolated_env, release_domain_id  # noqa: E402
 
 # The test process itself may start rclpy (in-process subscribers that watch the nodes): give it
 # an isolated domain before anything imports rclpy.
@@ -27,6 +27,7 @@ def ros_env():
     yield env
     if old is not None:
         os.environ["ROS_DOMAIN_ID"] = old
+    release_domain_id(env["ROS_DOMAIN_ID"])
 
 
 @pytest.fixture(scope="session")

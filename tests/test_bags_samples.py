@@ -12,7 +12,7 @@ from softhand_sim.skeleton_names import OPENXR_JOINT_COUNT
 from softhand_tracking import bag_synth
 from softhand_tracking.adapter import TrackerAdapter, bone_lengths
 from softhand_sim.bagio import deserialize, read_topic
-from softhand_tracking.kinematic_hand import DEFAULT_DIMS, DIGIT_LIMITS
+from softhand_tracking.kinematic_hand import DEFAULT_DIMS, DIGIT_LIMITS, forward_kinematics
 
 REPO = Path(__file__).resolve().parents[1]
 BAGS = REPO / "bags"
@@ -97,14 +97,18 @@ def test_same_data_through_the_mcap_reader(bag):
 
 
 def test_motions_do_what_they_say():
-    """grasp_lift lifts the wrist 10 cm; press_table takes the palm joints 3 cm below the table
-    top; fast_dropout peaks at 2 m/s and has one 300 ms gap; digit angles stay within limits."""
-    _, _, clean = bag_synth.sample("grasp_lift")
+    """grasp_lift lifts the wrist GRASP_LIFT (20 cm) with the digits closed and holds it there
+    GRASP_HOLD (3 s); press_table takes the palm joints 3 cm below the table top; fast_dropout
+    peaks at 2 m/s and has one 300 ms gap; digit angles stay within limits, and joints of every bag
+    but press_table stay a digit radius above the table."""
+    stamps, _, clean = bag_synth.sample("grasp_lift")
+    t = (stamps - stamps[0]) * 1e-9
     wrist = clean[:, 1, :3]
-    g = bag_synth.grasp_wrist()
-    assert np.isclose(wrist[:, 2].max() - g[2], 0.25, atol=1e-6)  # final retreat is the highest
-    held = wrist[(np.abs(wrist[:, 0] - g[0]) < 1e-6)]
-    assert np.isclose(held[:, 2].max() - g[2], 0.10, atol=1e-6)
+    g = bag_synth.cage_palm_pose()[:3]
+    t0, t1 = bag_synth.grasp_lift().phases["hold"]
+    held = wrist[(t >= t0) & (t <= t1)]
+    np.testing.assert_allclose(held - g, np.tile([0.0, 0.0, bag_synth.GRASP_LIFT], (len(held), 1)), atol=1e-9)
+    assert np.isclose(t1 - t0, bag_synth.GRASP_HOLD)
 
     _, _, clean = bag_synth.sample("press_table")
     palm_joints = clean[:, [0, 1, 7, 12, 17, 22], 2]
@@ -125,18 +129,31 @@ def test_motions_do_what_they_say():
         for x in np.linspace(0, motion.duration, 50):
             angles = motion(x)[1]
             assert np.all(angles >= DIGIT_LIMITS[:, :, 0] - 1e-12) and np.all(angles <= DIGIT_LIMITS[:, :, 1] + 1e-12), name
+            if name != "press_table":  # the others stay clear of the table by a digit radius
+                assert forward_kinematics(*motion(x))[0][:, 2].min() > bag_synth.TABLE_TOP + bag_synth.DIGIT_RADIUS, name
 
 
-def test_grasp_closes_inside_the_ball():
-    """The grasp closes thumb and fingers inside the ball (every digit > 5 mm, four within 1 mm of
-    1 cm; the thumb's deepest reach from this placement is 7 mm) and
-    the squeeze 3 cm (the digits that can reach it; every digit deeper than in the grasp),
-    computed on the kinematic hand's bone capsules."""
-    pose = np.r_[bag_synth.grasp_wrist(), bag_synth.PALM_DOWN]
-    hold = bag_synth.digit_depths(pose, bag_synth.closure_for_depth(pose, 0.010))
-    assert np.sum(np.abs(hold - 0.010) < 0.001) >= 4  # thumb and three fingers
-    squeeze = bag_synth.digit_depths(pose, bag_synth.closure_for_depth(pose, 0.030))
-    assert np.sum(squeeze > 0.029) >= 2 and np.all(squeeze >= hold - 1e-9) and hold.min() > 0.005
+def test_grasp_cages_the_ball():
+    """The caging grasp on the kinematic hand's bone capsules: open, the digits clear the ball by
+    over 5 mm all the way down from 6 cm above; at touch every digit's pad is within 2 mm of the
+    ball surface, below the equator (each push on the ball has an upward part >= 0.3) and the
+    pushes surround the ball (every horizontal direction is opposed by a push with a component
+    >= 0.2 along it); the squeeze takes every digit deeper (up to 1-3 cm inside); no joint
+    comes nearer the table than a digit radius."""
+    pose = bag_synth.cage_palm_pose()
+    opened, touch, squeeze = bag_synth.cage_angles()
+    for dz in np.linspace(0.0, 0.06, 7):
+        gaps, _ = bag_synth.cage_report(pose + np.r_[0, 0, dz, 0, 0, 0, 0], opened)
+        assert gaps.min() > 0.005, dz
+    gaps, push = bag_synth.cage_report(pose, touch)
+    assert np.all(np.abs(gaps) < 0.002), gaps
+    assert push[:, 2].min() >= 0.3, push
+    dirs = np.array([[np.cos(a), np.sin(a), 0.0] for a in np.linspace(0, 2 * np.pi, 72, endpoint=False)])
+    assert (push @ dirs.T).max(axis=0).min() >= 0.2
+    deep, _ = bag_synth.cage_report(pose, squeeze)
+    assert np.all(deep < gaps) and -0.03 <= deep.min() and deep.max() < -0.005, deep
+    for angles in (opened, touch, squeeze):
+        assert forward_kinematics(pose, angles)[0][:, 2].min() > bag_synth.TABLE_TOP + bag_synth.DIGIT_RADIUS
 
 
 def test_generation_is_deterministic(tmp_path):

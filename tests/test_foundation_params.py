@@ -19,7 +19,9 @@ def test_paper_defaults():
     assert sim["youngs_modulus"] == 1e5 and sim["poisson_ratio"] == 0.33
     assert sim["bone_tissue_k_total"] == 3.2e6 and sim["joint_stiffness"] == 2e5
     assert sim["nonlinear_w_max"] == 2500 and sim["nonlinear_k"] == 1000
-    assert (sim["tracking_kx"], sim["tracking_ktheta"]) == (50, 200)
+    # Deliberate departure (config/softhand.yaml): the palm's linear tracking coupling is 10x the
+    # paper's 50 N/m, which lets a hand holding the two-instance ball sag ~8 cm; angular as the paper.
+    assert sim["tracking_ktheta"] == 200 and sim["tracking_kx"] == 500
     assert (sim["object_kx"], sim["object_ktheta"]) == (170, 70)
     assert sim["cg_tolerance"] == 1e-5
     assert defaults("tracking_node")["rate"] == 250

@@ -5,18 +5,48 @@ interface; with it, no packet leaves loopback. A ROS_DOMAIN_ID of its own keeps 
 (two test sessions, a demo beside the tests) from hearing each other. ROS_LOCALHOST_ONLY is
 deprecated in Jazzy, so it is removed rather than set.
 """
+import fcntl
 import os
 import random
+import tempfile
 
-# Domain ids 0..101 and 215..232 are valid for Fast DDS on Linux with default ports; we keep to
-# a band that does not collide with the usual default (0) used by people's real robots.
-_DOMAIN_LOW, _DOMAIN_HIGH = 40, 100
+# Fast DDS ports are 7400 + 250 * domain (+ offsets), so ids up to 232 are valid on Linux; we keep
+# off the low ids that people's real robots use (0 is ROS's default).
+_DOMAIN_LOW, _DOMAIN_HIGH = 20, 230
+_LOCK_DIR = os.path.join(tempfile.gettempdir(), "softhand-ros-domains")
+_held = {}  # domain id -> open lock file (the flock lasts while this process keeps it open)
 
 
 def pick_domain_id(seed=None) -> int:
-    """A domain id for one isolated run (random unless seeded)."""
+    """A domain id that no other softhand run on this machine holds, claimed by this process.
+
+    Each id is claimed with an exclusive flock on a file under the temp dir: two test sessions, a
+    demo and a soak running at once never share a domain. The claim ends with release_domain_id()
+    or when this process exits (the kernel drops the lock), so a crash leaves nothing stale.
+    """
     rng = random.Random(seed if seed is not None else os.getpid() ^ int.from_bytes(os.urandom(2), "little"))
-    return rng.randint(_DOMAIN_LOW, _DOMAIN_HIGH)
+    ids = list(range(_DOMAIN_LOW, _DOMAIN_HIGH + 1))
+    rng.shuffle(ids)
+    os.makedirs(_LOCK_DIR, exist_ok=True)
+    for domain in ids:
+        if domain in _held:
+            continue
+        f = open(os.path.join(_LOCK_DIR, f"{domain}.lock"), "w")
+        try:
+            fcntl.flock(f, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            f.close()
+            continue
+        _held[domain] = f
+        return domain
+    raise RuntimeError(f"no free ROS domain id in {_DOMAIN_LOW}..{_DOMAIN_HIGH} (all held by other runs)")
+
+
+def release_domain_id(domain) -> None:
+    """Give back a domain id claimed by pick_domain_id (no-op for ids not held here)."""
+    f = _held.pop(int(domain), None)
+    if f is not None:
+        f.close()
 
 
 def isolated_env(domain_id=None, base=None) -> dict:

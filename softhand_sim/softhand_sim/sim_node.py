@@ -20,6 +20,7 @@ from visualization_msgs.msg import Marker
 
 from . import ros_msgs as rm
 from .params import ParamError
+from .scene import SceneError
 from .ros_common import LATCHED_QOS, LATEST_QOS, PUB_QOS, DiagnosticsPublisher, RateMeter, fail, run_node, split_cli
 from .ros_params import declare_node_params
 
@@ -57,6 +58,8 @@ class SimNode(Node):
         t0 = time.monotonic()
         try:
             self.runtime = SimRuntime(self.params)
+        except SceneError as exc:  # name the parameter that led to the bad scene
+            fail(f"{NODE_NAME}: parameter 'scene_file' = {self.params['scene_file']!r}: {exc}")
         except (ParamError, ValueError, FileNotFoundError) as exc:
             fail(str(exc))
         log.info(f"ready in {time.monotonic() - t0:.1f} s: {self.runtime.describe()}")
@@ -67,6 +70,7 @@ class SimNode(Node):
         self.step_ms = []
         self.cg_iters = []
         self.overruns = 0
+        self.last_guard_warning = ""
         self.pub_bones = self.create_publisher(PoseArray, "/hand/bones", PUB_QOS)
         self.pub_objects = self.create_publisher(MultiDOFJointTrajectory, "/hand/object_states", PUB_QOS)
         self.pub_skin = self.create_publisher(PointCloud2, "/hand/skin_vertices", PUB_QOS)
@@ -101,7 +105,7 @@ class SimNode(Node):
     def on_objects(self, msg):
         try:
             names, poses, twists, accels, stamp = rm.object_states_to_numpy(msg)
-            errors = self.runtime.set_object_copies(names, poses, twists, accels, self.now_s())
+            errors = self.runtime.set_object_copies(names, poses, twists, accels, stamp * 1e-9)  # the state's time
             for e in errors:
                 self.reject("object_states", e)
         except ValueError as exc:
@@ -138,6 +142,7 @@ class SimNode(Node):
             verts, tris = self.runtime.display_mesh(out)
             self.pub_marker.publish(self.marker_serializer.serialize(verts, tris, stamp))
         if out.warning:
+            self.last_guard_warning = out.warning
             self.get_logger().warning(out.warning, throttle_duration_sec=2.0)
 
     def collect_diagnostics(self):
@@ -156,8 +161,12 @@ class SimNode(Node):
             **self.runtime.diagnostics(),
             **{f"rejected_{k}": v for k, v in self.rejected.items()},
         }
-        level = "warn" if self.runtime.diagnostics().get("rejected_steps", 0) else "ok"
-        return values, level, "simulating" if steps.size else "waiting for /hand/intermediate_bones"
+        values["last_guard_warning"] = self.last_guard_warning or "-"
+        message = "simulating" if steps.size else "waiting for /hand/intermediate_bones"
+        if self.last_guard_warning:  # the latest divergence stays visible in the status line
+            message = f"{message}; {values['rejected_steps']} step(s) rejected, last: {self.last_guard_warning}"
+        level = "warn" if values.get("rejected_steps", 0) else "ok"
+        return values, level, message
 
 
 def main(args=None):

@@ -36,9 +36,11 @@ Left hands use the mirrored frames (INTERFACE.md): positions mirrored through th
 frames R_left = S R_right S with S = diag(1, −1, 1) — x and z keep their meaning (along the bone,
 dorsal), y = z × x is recomputed. `mirror_poses` applies this to a pose array.
 
-Validation before anything is passed on: exactly 26 joints, every coordinate finite, every bone
-length within [bone_length_min, bone_length_max], a non-degenerate palm. A bad frame raises
-`RejectedFrame` with a reason from REJECT_REASONS; `TrackerAdapter` counts rejections by reason.
+Validation before anything is passed on: exactly 26 joints, every coordinate finite and within
+MAX_ABS_COORDINATE of the tracker origin, every bone length within [bone_length_min,
+bone_length_max], a non-degenerate palm. A bad frame raises `RejectedFrame` with a reason from
+REJECT_REASONS; `TrackerAdapter` counts rejections by reason (TrackingLoop adds "stamp_order":
+a frame captured no later than the last accepted one).
 """
 from __future__ import annotations
 
@@ -51,7 +53,10 @@ from softhand_sim.skeleton_names import (BONE_COUNT, BONE_SEGMENTS, JOINT_INDEX,
 
 from .kinematic_hand import DEFAULT_DIMS, thumb_frame
 
-REJECT_REASONS = ("joint_count", "non_finite", "bone_length", "degenerate_palm")
+REJECT_REASONS = ("joint_count", "non_finite", "out_of_range", "bone_length", "degenerate_palm", "stamp_order")
+# [m] A joint farther than this from the tracker origin is a corrupt frame, not a hand in a room
+# (a whole hand shifted by 1e9 m keeps plausible bone lengths and would pass the other checks).
+MAX_ABS_COORDINATE = 100.0
 
 # Default plausible bone lengths [m]: generous bounds around adult hands (palm wrist->middle
 # knuckle 7-13 cm; thumb metacarpal 3-6 cm; phalanxes 1-6 cm), widened for tracker noise.
@@ -208,6 +213,8 @@ def validate_joints(joints, config: AdapterConfig) -> np.ndarray:
     if not np.all(np.isfinite(p)):
         bad = np.unique(np.nonzero(~np.isfinite(p))[0]).tolist()
         raise RejectedFrame("non_finite", f"non-finite position in joints {bad}")
+    if np.abs(p).max() > MAX_ABS_COORDINATE:
+        raise RejectedFrame("out_of_range", f"coordinate {np.abs(p).max():.3g} m beyond +-{MAX_ABS_COORDINATE} m")
     lengths = bone_lengths(p)
     bad = np.nonzero((lengths < config.bone_length_min) | (lengths > config.bone_length_max))[0]
     if bad.size:
@@ -235,12 +242,16 @@ class TrackerAdapter:
         self.accepted = 0
         self.last_reject = ""
 
+    def reject(self, err: RejectedFrame) -> None:
+        """Count a rejected frame (also used by the loop for frames refused on their stamp)."""
+        self.rejected[err.reason] += 1
+        self.last_reject = str(err)
+
     def convert(self, joints) -> np.ndarray | None:
         try:
             p = validate_joints(joints, self.config)
         except RejectedFrame as err:
-            self.rejected[err.reason] += 1
-            self.last_reject = str(err)
+            self.reject(err)
             return None
         world = transform_points(self.config.world_from_tracker, p)
         poses = bone_frames(world, self.config.hand)

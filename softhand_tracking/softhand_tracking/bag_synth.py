@@ -1,14 +1,16 @@
 """Deterministic synthetic tracker recordings for bags/ (tools/make_bags.py writes them).
 
 A kinematic right hand (`kinematic_hand`, default dimensions) is driven by keyframed palm poses
-and one closure value per digit; the closure maps to joint angles inside `DIGIT_LIMITS`. The 26
+and per digit a closure value (mapped to joint angles inside `DIGIT_LIMITS`) or explicit angles. The 26
 OpenXR joints are sampled at the tracker's rate with timing jitter and white position noise,
 as a real optical tracker reports them. Placed in the default scene (config/scene.yaml):
 table top z = 0.75, ball r = 0.04 at (0, 0, 0.79).
 
-Grasp closures are not guessed: `closure_for_depth` searches, for each digit, the closure at
-which the digit's bone capsules (radius DIGIT_RADIUS) reach a given depth inside the ball, so
-"close 1 cm inside the ball" means exactly that for the kinematic hand.
+The grasp bags (grasp_lift, grasp_short, squeeze) use a caging grasp (`cage_palm_pose`,
+`cage_angles`, see the block comment above them): digits pre-shaped open over the ball, closed
+until their pads touch the ball below its equator all around it, then squeezed deeper, and only
+then lifted. `digit_depths` / `closure_for_depth` measure (or search) how deep each digit's bone
+capsules (radius DIGIT_RADIUS) go into the ball for a closure.
 
 Scenarios (name -> Scenario): grasp_lift, squeeze, press_table, fast_dropout, grasp_short.
 """
@@ -18,7 +20,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from softhand_sim.rotations import quat_exp, quat_log, quat_mul, quat_conj
+from softhand_sim.rotations import quat_conj, quat_exp, quat_log, quat_mul, quat_to_matrix
 
 from .kinematic_hand import DEFAULT_DIMS, DIGIT_LIMITS, forward_kinematics
 
@@ -95,14 +97,18 @@ def _smooth(u):
 @dataclass
 class Keyframes:
     """Piecewise smooth motion through keys: (time [s], wrist position (3,), palm quat (4,),
-    closure (5,)). Between two keys each quantity eases from one to the next (zero velocity at
+    digit angles (5, 4) [rad]). `add` takes either a closure (5,) or scalar in [0, 1] (mapped by
+    `digit_angles`, which is linear, so easing closures or their angles is the same) or explicit
+    angles (5, 4). Between two keys each quantity eases from one to the next (zero velocity at
     the keys); orientation along the geodesic."""
 
     keys: list = field(default_factory=list)
+    phases: dict = field(default_factory=dict)   # name -> (t0, t1) [s], e.g. "hold": ball held up
 
     def add(self, t, position, closure, quat=PALM_DOWN):
-        self.keys.append((float(t), np.asarray(position, float), np.asarray(quat, float),
-                          np.broadcast_to(np.asarray(closure, float), (5,)).copy()))
+        c = np.asarray(closure, float)
+        angles = c.copy() if c.shape == (5, 4) else digit_angles(np.broadcast_to(c, (5,)))
+        self.keys.append((float(t), np.asarray(position, float), np.asarray(quat, float), angles))
         return self
 
     @property
@@ -123,40 +129,135 @@ class Keyframes:
             u = _smooth((t - k0[0]) / (k1[0] - k0[0]))
         pos = k0[1] + u * (k1[1] - k0[1])
         q = quat_mul(quat_exp(u * quat_log(quat_mul(k1[2], quat_conj(k0[2])))), k0[2])
-        closure = k0[3] + u * (k1[3] - k0[3])
-        return np.r_[pos, q], digit_angles(closure)
+        return np.r_[pos, q], k0[3] + u * (k1[3] - k0[3])
 
 
-def grasp_wrist(center=BALL_CENTER, press=0.004):
-    """Wrist position of the palm-down grasp, the palm's ventral skin `press` [m] into the ball top.
+# ---------------------------------------------------------------------------- caging grasp
+#
+# Closing a flat hand on the ball from above does not grasp it: the fingers meet the ball above
+# its equator and push it down and toward the wrist, out of the hand. The grasp below CAGES the
+# ball first: the palm over the ball and the five digit pads on the ball below its equator, all
+# around it, so that contact normals push up and toward the ball's centre from every horizontal
+# direction; only then do the digits squeeze deeper, and the hand lifts.
+#
+# The placement was found by a search on this kinematic hand's bone capsules (radius
+# DIGIT_RADIUS; palm pose and the 20 angles within DIGIT_LIMITS, minimising the distance of each
+# digit's middle/distal bones to the ball surface, with penalties on contact normals whose upward
+# part is under 0.5, on horizontal directions no contact pushes against, and on joints nearer
+# the table than a digit radius). It is a spherical grasp from above with the hand turned about
+# the vertical (the forearm comes from +x, -y of the ball), the fingers fanned toward the little
+# finger, the palm 5 mm into the ball top. `cage_report` checks the result.
+CAGE_SAG = 0.006          # [m] the simulated ball hangs this far below the engine's on its copy spring
+                          # (m g / object_kx = 0.98 / 170) before the hand touches it: design for it
+CAGE_PALM_RPY = (0.0219, 0.1535, 2.4268)   # [rad] palm orientation: yaw(z) * pitch(y) * roll(x) of PALM_DOWN
+CAGE_BALL_IN_PALM = (0.0808, -0.0016)       # [m] ball centre in the palm frame (x, y)
+CAGE_PALM_PRESS = 0.005                      # [m] palm skin into the ball top
+CAGE_TOUCH_DEG = np.array([                  # (abduction, flex_1, flex_2, flex_3) [deg], digit pads on the ball
+    [34.0, 16.2, -8.0, 80.0],
+    [-20.0, 32.6, 28.8, 50.5],
+    [-20.0, 17.8, 70.6, 20.9],
+    [-20.0, 26.6, 65.1, 23.2],
+    [-20.0, 66.0, 21.8, 42.3]])
+CAGE_OPEN = 0.45          # [-] open pre-shape: flexions at this fraction of the way from their lower limit to touch
+CAGE_SQUEEZE = 0.3        # [-] squeeze: touch plus this fraction of (touch - open) (~1.5-2 cm deeper at the tips)
 
-    The ball sits under the knuckles (11 cm from the wrist, 1 cm toward the little finger): of the
-    placements (1.5 cm grid) and thumb closing directions searched, this one gives contact normals
-    (four fingers 1 cm inside, the thumb at its deepest reach, 7 mm) that best surround the ball in the horizontal plane (every
-    horizontal direction has a contact with n.u >= 0.2), with contacts below the equator, so the
-    hand can hold the ball by friction when it lifts.
-    """
-    z = center[2] + BALL_RADIUS + PALM_VENTRAL - press
-    return np.array([center[0] - 0.11, center[1] + 0.01, z])
+
+def cage_palm_pose(center=BALL_CENTER):
+    """Palm pose (7,) of the caging grasp of a ball resting at `center` (its simulated copy sags
+    CAGE_SAG lower)."""
+    roll, pitch, yaw = CAGE_PALM_RPY
+    q = quat_mul(quat_exp(np.array([0.0, 0.0, yaw])),
+                 quat_mul(quat_exp(np.array([0.0, pitch, 0.0])), quat_exp(np.array([roll, 0.0, 0.0]))))
+    rot = quat_to_matrix(q)
+    c = np.asarray(center, float) - [0.0, 0.0, CAGE_SAG]
+    bx, by = CAGE_BALL_IN_PALM
+    wrist = c - rot @ np.array([bx, by, -(BALL_RADIUS + PALM_VENTRAL - CAGE_PALM_PRESS)])
+    return np.r_[wrist, q]
+
+
+def cage_angles():
+    """(open, touch, squeeze) digit angles (5, 4) [rad] of the caging grasp, within DIGIT_LIMITS.
+    open keeps the abductions and brings every flexion most of the way back toward its lower
+    limit (never below 3 deg), so the hand can come down over the ball without touching it."""
+    lo, hi = DIGIT_LIMITS[:, :, 0], DIGIT_LIMITS[:, :, 1]
+    touch = np.deg2rad(CAGE_TOUCH_DEG)
+    opened = touch.copy()
+    opened[:, 1:] = np.maximum(lo[:, 1:] + CAGE_OPEN * (touch[:, 1:] - lo[:, 1:]), np.deg2rad(3.0))
+    squeeze = np.clip(touch + CAGE_SQUEEZE * (touch - opened), lo, hi)
+    return opened, touch, squeeze
+
+
+def cage_report(palm_pose, angles, center=BALL_CENTER):
+    """Per digit (5,): gap [m] of its middle/distal bone capsules to the ball surface (negative:
+    inside) and the unit push direction (5, 3) of that contact on the ball (toward the centre),
+    for the simulated ball at center - CAGE_SAG."""
+    c = np.asarray(center, float) - [0.0, 0.0, CAGE_SAG]
+    joints, bones = forward_kinematics(palm_pose, angles)
+    gaps, pushes = np.empty(5), np.empty((5, 3))
+    for d, tip in enumerate((5, 10, 15, 20, 25)):
+        b0 = 1 + 3 * d
+        pts = [bones[b0 + 1, :3], bones[b0 + 2, :3], joints[tip, :3]]
+        best = None
+        for a, b in zip(pts[:-1], pts[1:]):
+            ab = b - a
+            q = a + np.clip(np.dot(c - a, ab) / np.dot(ab, ab), 0.0, 1.0) * ab
+            dist = np.linalg.norm(c - q)
+            if best is None or dist < best[0]:
+                best = (dist, (c - q) / dist)
+        gaps[d], pushes[d] = best[0] - BALL_RADIUS - DIGIT_RADIUS, best[1]
+    return gaps, pushes
+
+
+def _cage_motion(start_offset, lift, t_lift, t_hold, retreat):
+    """Keyframes of a caging grasp: from start_offset above/beside the grasp, come down with the
+    digits open, close them onto the ball (cage), squeeze, lift `lift` [m] in t_lift [s], hold
+    t_hold [s], open the digits (the ball drops), retreat by `retreat` [m]."""
+    pose = cage_palm_pose()
+    g, q = pose[:3], pose[3:]
+    opened, touch, squeeze = cage_angles()
+    above = g + [0.0, 0.0, 0.06]
+    up = g + [0.0, 0.0, lift]
+    k = Keyframes()
+    t = 0.0
+    if start_offset is not None:
+        k.add(t, g + start_offset, opened, q)
+        t += 1.5
+    k.add(t, above, opened, q).add(t + 1.2, g, opened, q)
+    t += 1.2
+    k.add(t + 1.0, g, touch, q).add(t + 1.7, g, squeeze, q).add(t + 2.0, g, squeeze, q)
+    t += 2.0
+    if lift > 0.0:
+        k.add(t + t_lift, up, squeeze, q).add(t + t_lift + t_hold, up, squeeze, q)
+        k.phases["hold"] = (t + t_lift, t + t_lift + t_hold)
+        t += t_lift + t_hold
+    else:
+        k.add(t + t_hold, up, squeeze, q).add(t + t_hold + 0.7, up, touch, q)
+        k.phases["squeeze"] = (t - 0.3, t + t_hold)
+        t += t_hold + 0.7
+    k.add(t + 1.0, up, opened, q)
+    k.phases["release"] = (t, t + 1.0)
+    t += 1.0
+    if retreat:
+        k.add(t + 1.0, up + [0.0, 0.0, retreat], opened, q)
+    return k
+
+
+GRASP_LIFT = 0.20   # [m] wrist lift of grasp_lift while holding the ball
+GRASP_HOLD = 3.0    # [s] grasp_lift holds the ball up this long
 
 
 def grasp_lift():
-    g = grasp_wrist()
-    pose = np.r_[g, PALM_DOWN]
-    hold = closure_for_depth(pose, 0.010)
-    up = g + [0, 0, 0.10]
-    return (Keyframes().add(0.0, g + [-0.20, 0.05, 0.20], 0).add(2.5, g + [0, 0, 0.08], 0)
-            .add(3.5, g, 0).add(4.8, g, hold).add(5.8, up, hold).add(8.8, up, hold)
-            .add(9.8, up, 0).add(11.0, g + [-0.05, 0, 0.25], 0))
+    return _cage_motion(np.array([-0.15, 0.10, 0.20]), GRASP_LIFT, 2.0, GRASP_HOLD, 0.05)
 
 
 def squeeze():
-    g = grasp_wrist()
-    pose = np.r_[g, PALM_DOWN]
-    touch, inside = closure_for_depth(pose, 0.0), closure_for_depth(pose, 0.030)
-    return (Keyframes().add(0.0, g + [-0.15, -0.05, 0.18], 0).add(2.0, g + [0, 0, 0.06], 0)
-            .add(3.0, g, 0).add(4.0, g, touch).add(5.2, g, inside).add(6.0, g, inside)
-            .add(7.0, g, touch).add(7.8, g, 0).add(9.0, g + [-0.05, 0, 0.20], 0))
+    """Cage the ball, squeeze it on the table (no lift), ease back to touch, open."""
+    return _cage_motion(np.array([-0.10, -0.05, 0.18]), 0.0, 0.0, 1.0, 0.05)
+
+
+def grasp_short():
+    """The caging grasp with a short lift (12 cm in 1.5 s) and 1 s hold, then release."""
+    return _cage_motion(None, 0.12, 1.5, 1.0, 0.0)
 
 
 PRESS_DEPTH = 0.03  # [m] joints of the palm and fingers below the table top at the deepest
@@ -207,13 +308,6 @@ class FastMotion:
         q = quat_exp(np.array([0.0, 0.0, yaw]))
         closure = 0.35 + 0.3 * np.sin(2 * np.pi * 1.0 * t)
         return np.r_[pos, q], digit_angles(np.full(5, closure))
-
-
-def grasp_short():
-    g = grasp_wrist()
-    hold = closure_for_depth(np.r_[g, PALM_DOWN], 0.010)
-    return (Keyframes().add(0.0, g + [0, 0, 0.05], 0).add(1.0, g, 0).add(2.0, g, hold)
-            .add(3.0, g + [0, 0, 0.03], hold))
 
 
 @dataclass(frozen=True)

@@ -239,7 +239,9 @@ class TrackingLoop:
     * `on_tracker(joints, t, capture_t=None)`: a tracker frame (26 joints) received at t [s]; the
       adapter validates and converts it (rejected frames are counted, never used). The tracked
       bones' velocity (damping reference) is the filtered finite difference of consecutive
-      accepted frames at their capture times.
+      accepted frames at their capture times. A frame whose capture time (header stamp; 0 =
+      unstamped, the receive time is used) is not after the last accepted one's is rejected as
+      "stamp_order" while tracking; during a hold any stamp is taken (a restarted tracker resyncs).
     * `on_sim_bones(poses, t)`: the latest full-simulation skeleton (16, 7), held constant until
       the next one; dropped after `sim_timeout` [s] without an update (a stopped sim must not
       hold the hand).
@@ -276,10 +278,18 @@ class TrackingLoop:
         return self.bones.tracked
 
     def on_tracker(self, joints, t: float, capture_t: float | None = None) -> bool:
+        from .adapter import RejectedFrame
+        capture_t = t if capture_t is None or capture_t == 0.0 else capture_t  # stamp 0: unstamped
+        # A frame captured no later than the last accepted one (duplicate, reordered) would move the
+        # target back in time. After a dropout (holding) any stamp is taken: a restarted tracker
+        # whose clock went back resynchronises instead of being refused forever.
+        if self._prev_capture is not None and not self.holding and capture_t <= self._prev_capture:
+            self.adapter.reject(RejectedFrame("stamp_order", f"capture time {capture_t:.6f} s not after "
+                                              f"the last accepted frame's {self._prev_capture:.6f} s"))
+            return False
         poses = self.adapter.convert(joints)
         if poses is None:
             return False
-        capture_t = t if capture_t is None else capture_t
         if not self.initialized:
             self.bones.reset(poses)
             self.initialized = True

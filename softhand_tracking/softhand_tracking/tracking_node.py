@@ -36,6 +36,7 @@ NODE_NAME = "tracking_node"
 # A late timer callback runs the steps it missed (each published, stamped with its own time) so the
 # loop keeps `rate` on average on a busy machine; more than this far behind, it skips ahead.
 MAX_CATCH_UP_S = 0.1
+REJECT_LOG_PERIOD = 2.0  # [s] at most one log line about rejected tracker frames per period
 
 
 class TrackingNode(Node):
@@ -81,8 +82,15 @@ class TrackingNode(Node):
     def on_tracker(self, msg: PoseArray) -> None:
         joints = pose_array_to_numpy(msg)
         was_holding = self.loop.holding
-        if self.loop.on_tracker(joints, self.now_s(), stamp_to_seconds(msg.header.stamp)) and was_holding:
-            self.get_logger().info("tracker frames are back: tracking resumed")
+        if self.loop.on_tracker(joints, self.now_s(), stamp_to_seconds(msg.header.stamp)):
+            if was_holding:
+                self.get_logger().info("tracker frames are back: tracking resumed")
+            return
+        # Counted by reason in /diagnostics; logged at most once per period (a flood of bad frames
+        # must not flood the log).
+        self.get_logger().warning(f"{self.loop.adapter.last_reject} (rejected so far: "
+                                  f"{sum(self.loop.adapter.rejected.values())})",
+                                  throttle_duration_sec=REJECT_LOG_PERIOD)
 
     def on_sim_bones(self, msg: PoseArray) -> None:
         try:

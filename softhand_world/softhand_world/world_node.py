@@ -51,6 +51,9 @@ class WorldNode(Node):
         p = self.params
         try:
             self.scene = load_scene(p["scene_file"] or None)
+        except SceneError as exc:  # name the parameter that led to the bad scene
+            fail(f"{NODE_NAME}: parameter 'scene_file' = {p['scene_file']!r}: {exc}")
+        try:
             config = WorldConfig(engine_rate=p["engine_rate"], coupling_kx=p["coupling_kx"],
                                  coupling_ktheta=p["coupling_ktheta"], copy_timeout=p["copy_timeout"],
                                  extrapolate=p["extrapolate"], coupling_damping=p["coupling_damping"],
