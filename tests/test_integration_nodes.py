@@ -14,7 +14,8 @@ import pytest
 
 from softhand_sim.paths import bags_dir
 
-pytestmark = [pytest.mark.ros, pytest.mark.slow]
+# Timing over real DDS between processes on a shared 2-core machine: one retry absorbs a stall.
+pytestmark = [pytest.mark.ros, pytest.mark.slow, pytest.mark.flaky(reruns=1, reruns_delay=2)]
 
 SOFTHAND = str(Path(sys.executable).parent / "softhand")
 SKIN_PARAMS = """\

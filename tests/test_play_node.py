@@ -10,7 +10,8 @@ from rosproc import RosGraph, RosProc
 from softhand_sim.ros_msgs import pose_array_from_numpy, pose_array_to_numpy, stamp_to_ns
 from softhand_sim.bagio import write_bag
 
-pytestmark = pytest.mark.ros
+# Timing over real DDS between processes on a shared 2-core machine: one retry absorbs a stall.
+pytestmark = [pytest.mark.ros, pytest.mark.flaky(reruns=1, reruns_delay=2)]
 
 TOPIC = "/tracker/hand_joints"
 T0_NS = 1_700_000_000 * 10**9

@@ -13,7 +13,8 @@ from rosproc import RosGraph
 from softhand_sim import ros_msgs as rm
 from softhand_sim.paths import bags_dir
 
-pytestmark = [pytest.mark.ros, pytest.mark.slow]
+# Timing over real DDS between processes on a shared 2-core machine: one retry absorbs a stall.
+pytestmark = [pytest.mark.ros, pytest.mark.slow, pytest.mark.flaky(reruns=1, reruns_delay=2)]
 
 DIAG = ["--ros-args", "-p", "diagnostics_rate:=4.0"]  # faster status: shorter waits
 OBJECTS = "ball,mug,small_box"

@@ -18,7 +18,8 @@ from softhand_sim import ros_msgs as rm
 from softhand_sim.bagio import read_topic
 from softhand_sim.record_node import header_stamp_ns
 
-pytestmark = pytest.mark.ros
+# Timing over real DDS between processes on a shared 2-core machine: one retry absorbs a stall.
+pytestmark = [pytest.mark.ros, pytest.mark.flaky(reruns=1, reruns_delay=2)]
 
 BURST = 3000
 # The publisher keeps every sample until the recorder acknowledged it (its history is as deep as

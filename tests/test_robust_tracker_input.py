@@ -169,6 +169,7 @@ def test_fuzz_10000_frames_exact_counts_in_the_loop():
 
 
 @pytest.mark.ros
+@pytest.mark.flaky(reruns=1, reruns_delay=2)  # real DDS timing on a shared 2-core machine
 def test_bad_frames_rejected_counted_logged_never_published(ros_env):
     """tracking_node + sim_node. (1) Paced categorized bad frames (wrong count, NaN/inf, 1e9 m, zero and
     absurd bones, duplicated and out-of-order stamps), each between two valid frames: each is counted

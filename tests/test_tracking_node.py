@@ -13,7 +13,8 @@ from softhand_sim.ros_msgs import diagnostic_values, pose_array_to_numpy, stamp_
 from softhand_tracking.adapter import TrackerAdapter
 from softhand_tracking.bag_synth import FAST_GAP
 
-pytestmark = [pytest.mark.ros, pytest.mark.slow]
+# Timing over real DDS between processes on a shared 2-core machine: one retry absorbs a stall.
+pytestmark = [pytest.mark.ros, pytest.mark.slow, pytest.mark.flaky(reruns=1, reruns_delay=2)]
 
 REPO = Path(__file__).resolve().parents[1]
 # [m] intermediate palm vs tracked palm. The loop alone keeps 5 cm on this bag, deterministically

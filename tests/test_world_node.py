@@ -10,7 +10,8 @@ from trajectory_msgs.msg import MultiDOFJointTrajectory
 from rosproc import RosGraph
 from softhand_sim import ros_msgs as rm
 
-pytestmark = pytest.mark.ros
+# Timing over real DDS between processes on a shared 2-core machine: one retry absorbs a stall.
+pytestmark = [pytest.mark.ros, pytest.mark.flaky(reruns=1, reruns_delay=2)]
 
 
 def test_world_node_rate_and_coupling(ros_env):

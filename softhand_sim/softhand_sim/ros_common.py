@@ -114,6 +114,31 @@ class RateMeter:
                 "count": self.count}
 
 
+# ---------------------------------------------------------------------------------- rejections
+
+
+class RejectionLog:
+    """Counts rejected inputs by reason; logs each reason at most once per `period` [s].
+
+    `log(reason, detail)` counts and maybe logs; `counts` (reason -> n) goes into /diagnostics.
+    Bad input must never stop a node, and a flood of it must not flood the log either.
+    """
+
+    def __init__(self, logger, period: float = 2.0, clock: Callable[[], float] = time.monotonic):
+        self._logger = logger
+        self._period = float(period)
+        self._clock = clock
+        self._last = {}
+        self.counts = {}
+
+    def log(self, reason: str, detail) -> None:
+        self.counts[reason] = self.counts.get(reason, 0) + 1
+        now = self._clock()
+        if now - self._last.get(reason, -math.inf) > self._period:
+            self._last[reason] = now
+            self._logger.warning(f"rejected {reason}: {detail} (total {self.counts[reason]})")
+
+
 # ---------------------------------------------------------------------------------- diagnostics
 
 

@@ -21,7 +21,7 @@ from visualization_msgs.msg import Marker
 from . import ros_msgs as rm
 from .params import ParamError
 from .scene import SceneError
-from .ros_common import LATCHED_QOS, LATEST_QOS, PUB_QOS, DiagnosticsPublisher, RateMeter, fail, run_node, split_cli
+from .ros_common import LATCHED_QOS, LATEST_QOS, PUB_QOS, DiagnosticsPublisher, RejectionLog, RateMeter, fail, run_node, split_cli
 from .ros_params import declare_node_params
 
 NODE_NAME = "sim_node"
@@ -64,8 +64,7 @@ class SimNode(Node):
             fail(str(exc))
         log.info(f"ready in {time.monotonic() - t0:.1f} s: {self.runtime.describe()}")
         self.dt = 1.0 / self.params["sim_rate"]
-        self.rejected = {}
-        self._last_reject_log = {}
+        self.rejections = RejectionLog(self.get_logger(), REJECT_LOG_PERIOD)
         self.meter = RateMeter()
         self.step_ms = []
         self.cg_iters = []
@@ -89,11 +88,7 @@ class SimNode(Node):
 
     # -------------------------------------------------------------------- inputs
     def reject(self, reason, detail):
-        self.rejected[reason] = self.rejected.get(reason, 0) + 1
-        now = time.monotonic()
-        if now - self._last_reject_log.get(reason, -np.inf) > REJECT_LOG_PERIOD:
-            self._last_reject_log[reason] = now
-            self.get_logger().warning(f"rejected {reason}: {detail} (total {self.rejected[reason]})")
+        self.rejections.log(reason, detail)
 
     def on_bones(self, msg):
         try:
@@ -159,7 +154,7 @@ class SimNode(Node):
             "cg_iters_max": int(iters.max()) if iters.size else 0,
             "overruns": self.overruns,
             **self.runtime.diagnostics(),
-            **{f"rejected_{k}": v for k, v in self.rejected.items()},
+            **{f"rejected_{k}": v for k, v in self.rejections.counts.items()},
         }
         values["last_guard_warning"] = self.last_guard_warning or "-"
         message = "simulating" if steps.size else "waiting for /hand/intermediate_bones"

@@ -17,7 +17,7 @@ from visualization_msgs.msg import MarkerArray
 
 from softhand_sim import ros_msgs as rm
 from softhand_sim.params import ParamError
-from softhand_sim.ros_common import LATEST_QOS, PUB_QOS, DiagnosticsPublisher, RateMeter, fail, run_node, split_cli
+from softhand_sim.ros_common import LATEST_QOS, PUB_QOS, DiagnosticsPublisher, RejectionLog, RateMeter, fail, run_node, split_cli
 from softhand_sim.ros_params import declare_node_params
 from softhand_sim.scene import SceneError, load_scene
 
@@ -65,8 +65,7 @@ class WorldNode(Node):
         self.get_logger().info(
             f"scene {self.scene.path}: dynamic {list(self.world.names)}; engine {p['engine_rate']} Hz; "
             f"coupling (kx, ktheta) per object {self.world.stiffness.round(4).tolist()}")
-        self.rejected = {}
-        self._last_reject_log = {}
+        self.rejections = RejectionLog(self.get_logger(), REJECT_LOG_PERIOD)
         self.meter = RateMeter()
         self.step_ms = []
         self.late_steps = 0
@@ -85,11 +84,7 @@ class WorldNode(Node):
 
     # -------------------------------------------------------------------- inputs
     def reject(self, reason, detail):
-        self.rejected[reason] = self.rejected.get(reason, 0) + 1
-        now = time.monotonic()
-        if now - self._last_reject_log.get(reason, -np.inf) > REJECT_LOG_PERIOD:
-            self._last_reject_log[reason] = now
-            self.get_logger().warning(f"rejected {reason}: {detail} (total {self.rejected[reason]})")
+        self.rejections.log(reason, detail)
 
     def on_hand_objects(self, msg):
         try:
@@ -144,9 +139,9 @@ class WorldNode(Node):
             "coupled_objects": ",".join(coupled),
             "stale_copies": ",".join(stale),
             "late_resyncs": self.late_steps,
-            **{f"rejected_{k}": v for k, v in self.rejected.items()},
+            **{f"rejected_{k}": v for k, v in self.rejections.counts.items()},
         }
-        level = "warn" if stale or self.rejected else "ok"
+        level = "warn" if stale or self.rejections.counts else "ok"
         message = f"{len(coupled)} coupled, {len(stale)} stale" if status else "no dynamic objects"
         return values, level, message
 
