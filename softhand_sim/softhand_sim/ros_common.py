@@ -28,6 +28,7 @@ from rclpy.signals import SignalHandlerOptions
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.utilities import remove_ros_args
 
+from softhand_sim.params import ParamError
 from softhand_sim.ros_msgs import diagnostic_array, diagnostic_status
 
 # ------------------------------------------------------------------------------------------- QoS
@@ -232,7 +233,8 @@ def run_node(make_node: Callable[..., Node], args=None, init_args=None, drain_s:
     nothing or drain_s is spent -- a recorder loses nothing that reached its process. Then the
     node's `close()` runs if it has one (flushing files), the node is destroyed and rclpy shut
     down. An external rclpy.shutdown() also ends spin quietly. A callback may raise NodeExit(code)
-    to stop with that exit code.
+    to stop with that exit code. A ParamError while building the node (a bad parameter) prints
+    one line naming the key and value and returns 1, with no traceback.
     """
     stop = {"signal": None}
 
@@ -258,6 +260,9 @@ def run_node(make_node: Callable[..., Node], args=None, init_args=None, drain_s:
         code = exc.code
         if str(exc):
             print(str(exc), file=sys.stderr, flush=True)
+    except ParamError as exc:
+        print(f"error: {exc}", file=sys.stderr, flush=True)
+        code = 1
     finally:
         for s in old:  # a second Ctrl-C must not cut close() short
             signal.signal(s, signal.SIG_IGN)

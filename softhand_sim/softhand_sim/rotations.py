@@ -43,19 +43,22 @@ def quat_normalize(q):
     return q / n
 
 
+@njit(cache=True, inline="always")
+def quat_matrix_entries(x, y, z, w):
+    """The nine entries (row major) of the rotation matrix of unit quaternion [x, y, z, w], as
+    scalars: allocation-free kernels (the fused tissue kernel) use this; quat_to_matrix fills them."""
+    return (1.0 - 2.0 * (y * y + z * z), 2.0 * (x * y - z * w), 2.0 * (x * z + y * w),
+            2.0 * (x * y + z * w), 1.0 - 2.0 * (x * x + z * z), 2.0 * (y * z - x * w),
+            2.0 * (x * z - y * w), 2.0 * (y * z + x * w), 1.0 - 2.0 * (x * x + y * y))
+
+
 @njit(cache=True)
 def quat_to_matrix(q):
-    x, y, z, w = q[0], q[1], q[2], q[3]
+    m00, m01, m02, m10, m11, m12, m20, m21, m22 = quat_matrix_entries(q[0], q[1], q[2], q[3])
     m = np.empty((3, 3))
-    m[0, 0] = 1.0 - 2.0 * (y * y + z * z)
-    m[0, 1] = 2.0 * (x * y - z * w)
-    m[0, 2] = 2.0 * (x * z + y * w)
-    m[1, 0] = 2.0 * (x * y + z * w)
-    m[1, 1] = 1.0 - 2.0 * (x * x + z * z)
-    m[1, 2] = 2.0 * (y * z - x * w)
-    m[2, 0] = 2.0 * (x * z - y * w)
-    m[2, 1] = 2.0 * (y * z + x * w)
-    m[2, 2] = 1.0 - 2.0 * (x * x + y * y)
+    m[0, 0], m[0, 1], m[0, 2] = m00, m01, m02
+    m[1, 0], m[1, 1], m[1, 2] = m10, m11, m12
+    m[2, 0], m[2, 1], m[2, 2] = m20, m21, m22
     return m
 
 

@@ -47,10 +47,7 @@ class SimNode(Node):
 
     def __init__(self):
         super().__init__(NODE_NAME)
-        try:
-            self.params = declare_node_params(self, NODE_NAME)
-        except ParamError as exc:
-            fail(str(exc))
+        self.params = declare_node_params(self, NODE_NAME)  # ParamError: run_node reports it, exit 1
         from .sim_runtime import SimRuntime  # heavy: numba kernels, hand model
 
         log = self.get_logger()

@@ -16,7 +16,6 @@ from trajectory_msgs.msg import MultiDOFJointTrajectory
 from visualization_msgs.msg import MarkerArray
 
 from softhand_sim import ros_msgs as rm
-from softhand_sim.params import ParamError
 from softhand_sim.ros_common import LATEST_QOS, PUB_QOS, DiagnosticsPublisher, RejectionLog, RateMeter, fail, run_node, split_cli
 from softhand_sim.ros_params import declare_node_params
 from softhand_sim.scene import SceneError, load_scene
@@ -44,10 +43,7 @@ class WorldNode(Node):
 
     def __init__(self):
         super().__init__(NODE_NAME)
-        try:
-            self.params = declare_node_params(self, NODE_NAME)
-        except ParamError as exc:
-            fail(str(exc))
+        self.params = declare_node_params(self, NODE_NAME)  # ParamError: run_node reports it, exit 1
         p = self.params
         try:
             self.scene = load_scene(p["scene_file"] or None)

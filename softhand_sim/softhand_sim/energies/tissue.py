@@ -16,7 +16,7 @@ Rotations are kept per tet as quaternions tet_q (T,4) [x,y,z,w], warm-started ea
 import numpy as np
 from numba import njit
 
-from ..rotations import polar_rotation_update, quat_to_matrix
+from ..rotations import polar_rotation_update, quat_matrix_entries, quat_to_matrix
 
 
 def rest_data(tet_nodes, tets, youngs, poisson):
@@ -214,15 +214,7 @@ def _polar_update(F, qx, qy, qz, qw, iterations):
     """polar_rotation_update (rotations.py, Mueller et al. 2016) on scalars, no allocation; the
     exponential map uses its Taylor series below 0.1 rad (truncation < 1e-19, i.e. round-off)."""
     for _ in range(iterations):
-        r00 = 1.0 - 2.0 * (qy * qy + qz * qz)
-        r01 = 2.0 * (qx * qy - qz * qw)
-        r02 = 2.0 * (qx * qz + qy * qw)
-        r10 = 2.0 * (qx * qy + qz * qw)
-        r11 = 1.0 - 2.0 * (qx * qx + qz * qz)
-        r12 = 2.0 * (qy * qz - qx * qw)
-        r20 = 2.0 * (qx * qz - qy * qw)
-        r21 = 2.0 * (qy * qz + qx * qw)
-        r22 = 1.0 - 2.0 * (qx * qx + qy * qy)
+        r00, r01, r02, r10, r11, r12, r20, r21, r22 = quat_matrix_entries(qx, qy, qz, qw)
         wx = (r10 * F[2, 0] - r20 * F[1, 0]) + (r11 * F[2, 1] - r21 * F[1, 1]) + (r12 * F[2, 2] - r22 * F[1, 2])
         wy = (r20 * F[0, 0] - r00 * F[2, 0]) + (r21 * F[0, 1] - r01 * F[2, 1]) + (r22 * F[0, 2] - r02 * F[2, 2])
         wz = (r00 * F[1, 0] - r10 * F[0, 0]) + (r01 * F[1, 1] - r11 * F[0, 1]) + (r02 * F[1, 2] - r12 * F[0, 2])
@@ -290,15 +282,7 @@ def add_all_fused(x, tets, Dm_inv, vol, lam, mu, tet_q, iterations, nl_k, nl_wma
                 F[r, c] = D[r, 0] * gr[1, c] + D[r, 1] * gr[2, c] + D[r, 2] * gr[3, c]
         qx, qy, qz, qw = _polar_update(F, tet_q[e, 0], tet_q[e, 1], tet_q[e, 2], tet_q[e, 3], iterations)
         tet_q[e, 0], tet_q[e, 1], tet_q[e, 2], tet_q[e, 3] = qx, qy, qz, qw
-        R00 = 1.0 - 2.0 * (qy * qy + qz * qz)
-        R01 = 2.0 * (qx * qy - qz * qw)
-        R02 = 2.0 * (qx * qz + qy * qw)
-        R10 = 2.0 * (qx * qy + qz * qw)
-        R11 = 1.0 - 2.0 * (qx * qx + qz * qz)
-        R12 = 2.0 * (qy * qz - qx * qw)
-        R20 = 2.0 * (qx * qz - qy * qw)
-        R21 = 2.0 * (qy * qz + qx * qw)
-        R22 = 1.0 - 2.0 * (qx * qx + qy * qy)
+        R00, R01, R02, R10, R11, R12, R20, R21, R22 = quat_matrix_entries(qx, qy, qz, qw)
         # G = R^T F, eps = sym(G) - I, sigma = lam tr(eps) I + 2 mu eps
         G = D  # Ds is no longer needed: reuse its storage for G
         for c in range(3):
