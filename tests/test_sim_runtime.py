@@ -108,3 +108,15 @@ def test_object_copies_validated_and_followed(runtime):
         out = runtime.step(DT, t)
         t += DT
     assert abs(out.object_poses[i, 0] - moved[0]) < 0.005
+
+
+def test_warm_up_leaves_the_runtime_as_it_was(runtime):
+    """warm_up (compiling every step kernel before the node publishes) changes no state."""
+    before = runtime.state.copy()
+    runtime.warm_up(DT)
+    assert runtime.step(DT, 0.0) is None and not runtime.placed and runtime.steps == 0
+    assert np.array_equal(runtime.state.node_x, before.node_x)
+    assert np.array_equal(runtime.state.body_pose, before.body_pose)
+    runtime.set_bone_targets(hover_targets(runtime))
+    out = runtime.step(DT, 0.0)
+    assert not out.rejected and runtime.diagnostics()["rejected_steps"] == 0

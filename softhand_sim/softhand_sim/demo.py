@@ -133,6 +133,9 @@ def run_demo(bag, out_dir, rate=1.0, params_file=None, preview=True, startup_tim
         summary["preview"] = render_preview(out_dir / "bag", out_dir)
         (out_dir / "summary.json").write_text(json.dumps(summary, indent=2))
     say(format_summary(summary, out_dir))
+    silent = [t for t in READY_TOPICS if not summary.get("messages_per_topic", {}).get(t)]
+    if silent:
+        raise SystemExit(f"error: nothing was recorded on {silent}; see the node logs in {out_dir / 'logs'}")
     return summary
 
 

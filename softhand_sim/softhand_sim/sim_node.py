@@ -59,8 +59,10 @@ class SimNode(Node):
             fail(f"{NODE_NAME}: parameter 'scene_file' = {self.params['scene_file']!r}: {exc}")
         except (ParamError, ValueError, FileNotFoundError) as exc:
             fail(str(exc))
-        log.info(f"ready in {time.monotonic() - t0:.1f} s: {self.runtime.describe()}")
         self.dt = 1.0 / self.params["sim_rate"]
+        log.info("compiling the solver kernels (first run of a checkout only: about a minute)...")
+        self.runtime.warm_up(self.dt)
+        log.info(f"ready in {time.monotonic() - t0:.1f} s: {self.runtime.describe()}")
         self.rejections = RejectionLog(self.get_logger(), REJECT_LOG_PERIOD)
         self.meter = RateMeter()
         self.step_ms = []

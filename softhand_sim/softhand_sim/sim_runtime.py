@@ -169,6 +169,24 @@ class SimRuntime:
         if not self.placed:
             self.place_hand(poses[0])
 
+    def warm_up(self, dt):
+        """Run one throwaway step so numba compiles (or loads from its cache) every kernel of the
+        step now, not during the first tracked second; the runtime is left exactly as it was.
+
+        On a fresh checkout the first step compiles for about a minute: a node that published
+        before this would simulate nothing while its peers ran on.
+        """
+        saved = (self.state.copy(), self.good_state.copy(), self.bone_targets, self.placed,
+                 self.steps, self._prev_body_v.copy(), self.object_targets.copy())
+        self.set_bone_targets(self.model.body_rest_pose[:self.model.bone_count])
+        self.step(dt, 0.0)
+        self.display_mesh()
+        (self.state, self.good_state, self.bone_targets, self.placed, self.steps, self._prev_body_v,
+         self.object_targets) = saved
+        self.contacts.reset()
+        self.rejected_steps = 0
+        self.solver.set_bone_targets(self.model.body_rest_pose[:self.model.bone_count])
+
     def place_hand(self, palm_pose):
         """Teleport the whole hand rigidly so that its palm is at `palm_pose` (at rest otherwise)."""
         m, s = self.model, self.state
