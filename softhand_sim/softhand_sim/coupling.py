@@ -263,6 +263,19 @@ def explicit_coupling_wrench(pose_a, twist_a, pose_b, twist_b, kx, ktheta, dampi
 DEFAULT_MAX_OMEGA = 45.0  # [rad/s]
 
 
+def warm_up():
+    """Compile (or load from numba's cache) every coupling kernel now: called at node start so the
+    first copy of a grasped object does not stall a real-time loop for seconds on a fresh checkout."""
+    pose = np.array([0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0])
+    twist = np.zeros(6)
+    extrapolate_pose(pose, twist, twist, 0.0, 0.01)
+    coupling_energy(pose, pose, 1.0, 1.0)
+    coupling_wrench(pose, pose, 1.0, 1.0)
+    coupling_stiffness(pose, pose, 1.0, 1.0)
+    implicit_coupling_wrench(pose, twist, np.zeros(6), pose, twist, 1.0, np.eye(3), 1.0, 1.0, 0.0, 0.01)
+    explicit_coupling_wrench(pose, twist, pose, twist, 1.0, 1.0, 0.0)
+
+
 def limit_coupling_stiffness(kx, ktheta, mass, inertia_local, max_omega=DEFAULT_MAX_OMEGA):
     """(kx, ktheta) of one object capped so that neither coupling oscillates above max_omega.
 

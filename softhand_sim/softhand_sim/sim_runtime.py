@@ -16,6 +16,7 @@ import numpy as np
 
 from . import contact as contact_mod
 from .coupling import ObjectCopy, limit_coupling_stiffness
+from .coupling import warm_up as coupling_warm_up
 from .handmodel import load_or_build_hand
 from .model import build_model
 from .rotations import quat_mul, quat_conj, quat_to_matrix
@@ -181,6 +182,7 @@ class SimRuntime:
         self.set_bone_targets(self.model.body_rest_pose[:self.model.bone_count])
         self.step(dt, 0.0)
         self.display_mesh()
+        coupling_warm_up()
         (self.state, self.good_state, self.bone_targets, self.placed, self.steps, self._prev_body_v,
          self.object_targets) = saved
         self.contacts.reset()

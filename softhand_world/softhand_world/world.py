@@ -27,6 +27,7 @@ from pybullet_utils.bullet_client import BulletClient
 
 from softhand_sim.coupling import (DEFAULT_MAX_OMEGA, PAPER_KTHETA, PAPER_KX, AccelerationEstimator,
                                    ObjectCopy, explicit_coupling_wrench, implicit_coupling_wrench,
+                                   warm_up as coupling_warm_up,
                                    limit_coupling_stiffness)
 from softhand_sim.rotations import quat_to_matrix
 
@@ -137,6 +138,7 @@ class World:
         self._read_states()
         self._acc = self._accel.update(self._twist, self.time)
         self._free_accel = np.array([0.0, 0.0, -self.config.gravity, 0.0, 0.0, 0.0])
+        coupling_warm_up()  # compile the coupling kernels now, not at the first grasp
         # damping ratio zeta -> c = k tau with tau = 2 zeta / omega, omega = sqrt(kx / m) per object
         self._damping_tau = 2.0 * self.config.coupling_damping / np.sqrt(
             np.maximum(self.stiffness[:, 0], 1e-12) / np.maximum(self._mass, 1e-12)) if len(dyn) else np.zeros(0)
