@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import time
+from collections import deque
 
 import numpy as np
 from geometry_msgs.msg import PoseArray
@@ -25,6 +26,7 @@ from .ros_common import LATCHED_QOS, LATEST_QOS, PUB_QOS, DiagnosticsPublisher, 
 from .ros_params import declare_node_params
 
 NODE_NAME = "sim_node"
+DIAG_WINDOW = 1000  # steps in the /diagnostics step-time and CG statistics
 REJECT_LOG_PERIOD = 2.0  # [s] at most one log line per rejection reason per period
 
 
@@ -65,8 +67,8 @@ class SimNode(Node):
         log.info(f"ready in {time.monotonic() - t0:.1f} s: {self.runtime.describe()}")
         self.rejections = RejectionLog(self.get_logger(), REJECT_LOG_PERIOD)
         self.meter = RateMeter()
-        self.step_ms = []
-        self.cg_iters = []
+        self.step_ms = deque(maxlen=DIAG_WINDOW)  # [ms] per step, the window /diagnostics reports on
+        self.cg_iters = deque(maxlen=DIAG_WINDOW)
         self.overruns = 0
         self.last_guard_warning = ""
         self.pub_bones = self.create_publisher(PoseArray, "/hand/bones", PUB_QOS)
@@ -140,10 +142,8 @@ class SimNode(Node):
             self.get_logger().warning(out.warning, throttle_duration_sec=2.0)
 
     def collect_diagnostics(self):
-        steps = np.asarray(self.step_ms[-1000:])
-        iters = np.asarray(self.cg_iters[-1000:])
-        self.step_ms = self.step_ms[-1000:]
-        self.cg_iters = self.cg_iters[-1000:]
+        steps = np.asarray(self.step_ms)
+        iters = np.asarray(self.cg_iters)
         rate = self.meter.stats()
         values = {
             "sim_rate_hz": rate["rate_hz"],
