@@ -12,7 +12,7 @@ from softhand_sim.skeleton_names import OPENXR_JOINT_COUNT
 from softhand_tracking import bag_synth
 from softhand_tracking.adapter import TrackerAdapter, bone_lengths
 from softhand_sim.bagio import deserialize, read_topic
-from softhand_tracking.kinematic_hand import DEFAULT_DIMS, DIGIT_LIMITS, forward_kinematics
+from softhand_sim.kinematic_hand import DEFAULT_DIMS, DIGIT_LIMITS, forward_kinematics
 
 REPO = Path(__file__).resolve().parents[1]
 BAGS = REPO / "bags"

@@ -14,7 +14,7 @@ import pytest
 from softhand_sim.params import load_params
 from softhand_sim.sim_runtime import SimRuntime
 from softhand_tracking.bag_synth import PALM_DOWN, digit_angles
-from softhand_tracking.kinematic_hand import forward_kinematics
+from softhand_sim.kinematic_hand import forward_kinematics
 from softhand_tracking.loop import LoopConfig, TrackingLoop, default_bone_inertia
 
 LOOP_DT, SIM_DT, FRAME_DT = 1.0 / 250.0, 1.0 / 60.0, 0.01

@@ -8,7 +8,7 @@ from softhand_tracking.adapter import (REJECT_REASONS, AdapterConfig, TrackerAda
 from softhand_sim.handmodel.measures import HandMeasures
 from softhand_sim.handmodel.skeleton import build_skeleton
 from softhand_sim.skeleton_names import BONE_SEGMENTS
-from softhand_tracking.kinematic_hand import DIGIT_LIMITS, forward_kinematics
+from softhand_sim.kinematic_hand import DIGIT_LIMITS, forward_kinematics
 
 MAX_ORIENTATION_ERROR = np.deg2rad(0.5)
 

@@ -7,7 +7,7 @@ import pytest
 from softhand_sim.rotations import quat_exp, quat_mul, quat_to_matrix, relative_rotvec
 from softhand_tracking import bag_synth
 from softhand_tracking.adapter import bone_frames
-from softhand_tracking.kinematic_hand import forward_kinematics
+from softhand_sim.kinematic_hand import forward_kinematics
 from softhand_tracking.loop import IntermediateBones, LoopConfig, TrackingLoop, default_bone_inertia
 
 DT = 1.0 / 250.0

@@ -51,7 +51,7 @@ import numpy as np
 from softhand_sim.rotations import matrix_to_quat, quat_to_matrix
 from softhand_sim.skeleton_names import (BONE_COUNT, BONE_SEGMENTS, JOINT_INDEX, OPENXR_JOINT_COUNT)
 
-from .kinematic_hand import DEFAULT_DIMS, thumb_frame
+from softhand_sim.kinematic_hand import DEFAULT_DIMS, thumb_frame
 
 REJECT_REASONS = ("joint_count", "non_finite", "out_of_range", "bone_length", "degenerate_palm", "stamp_order")
 # [m] A joint farther than this from the tracker origin is a corrupt frame, not a hand in a room

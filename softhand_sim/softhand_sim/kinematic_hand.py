@@ -1,7 +1,8 @@
 """A kinematic right hand: palm pose + digit angles -> 26 OpenXR joints and 16 bone poses.
 
-Used to synthesise the sample tracker bags (`bag_synth`) and, independently of the adapter's
-inverse, as ground truth for the adapter tests. Rest pose as the hand model's (ARCHITECTURE.md):
+Used to synthesise the sample tracker bags (softhand_tracking.bag_synth), to script bone targets
+of grasps on the solver (contact_scenarios: the thumb-index pinch) and, independently of the
+tracking adapter's inverse, as ground truth for the adapter tests. Rest pose as the hand model's (ARCHITECTURE.md):
 palm down (dorsal +z), fingers along +x, thumb toward +y, wrist joint at the palm frame origin.
 
 Joint model (the one `adapter` assumes when it reads the twist of the fingers):
