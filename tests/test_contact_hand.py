@@ -103,8 +103,8 @@ def _roll(poses, q):
 
 @pytest.mark.slow
 def test_cupped_hand_lifts_holds_and_drops_ball(asset):
-    """Grasp and hold (the issue's pinch replaced by a cradle: palm up, tilted 0.15 rad toward
-    the fingertips, the four fingers curled 0.5 rad per joint). The world's copy holds the free
+    """Grasp and hold in a cradle (the issue's thumb-index pinch is test_contact_pinch.py): palm
+    up, tilted 0.15 rad toward the fingertips, the four fingers curled 0.5 rad per joint. The world's copy holds the free
     0.1 kg ball until the hand has closed, then lets go; the hand lifts it 10 cm in 1 s and holds
     it 5 s: the ball moves < 2 mm relative to the palm while held; turning the hand palm down
     releases it and it falls (no contact left, below the palm)."""

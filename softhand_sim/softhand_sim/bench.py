@@ -7,7 +7,8 @@
 Meshes: coarse / fine = the parametric hand model (handmodel.load_or_build_hand(resolution=...));
 box = the voxel box hand of bench_scenes (~850 tets, the paper's size; no hand builder needed).
 Scenarios live in SCENARIOS (name -> setup(solver, state) returning a per-step callback
-update(k, t)); the contact helper adds `grasp` there and may report contacts/collision columns.
+update(k, t)); `grasp` is the thumb-index pinch of contact_scenarios (PinchScenario).
+contacts_median: active skin contacts per step; collision_ms: median collision-detection time.
 Timings: median and p99 of the whole step (wall clock, one thread: NUMBA_NUM_THREADS=1);
 setup = rotations + assembly (+ the preconditioner's refactorization), solve = PCG + advance.
 """
@@ -103,16 +104,18 @@ class _Press:
 
 
 SCENARIOS = {"free": _Free(), "press": _Press()}
-from .contact_scenarios import GraspScenario  # noqa: E402  # contact:
-SCENARIOS["grasp"] = GraspScenario()  # contact: ball under the palm, fingers closing (contact_scenarios.py)
+from .contact_scenarios import PinchScenario  # noqa: E402
+SCENARIOS["grasp"] = PinchScenario()  # thumb-index pinch of the ball, lifted (contact_scenarios.py)
 
 
 def run(scenario, mesh, steps, preconditioner):
     from .model import build_model
     from .solver import Solver
     asset, source = _asset(mesh)
-    objects = getattr(SCENARIOS[scenario], "objects", None)  # contact: scenarios may add rigid objects
-    model = build_model(asset, {"preconditioner": preconditioner}, objects=objects(asset) if objects else ())
+    objects = getattr(SCENARIOS[scenario], "objects", None)  # scenarios may add rigid objects
+    params = getattr(SCENARIOS[scenario], "params", dict)()   # ... and their own solver parameters
+    model = build_model(asset, {**params, "preconditioner": preconditioner},
+                        objects=objects(asset) if objects else ())
     t0 = time.perf_counter()
     warm = Solver(model)  # compile every kernel once on a throwaway state
     ws = model.initial_state()
@@ -152,7 +155,7 @@ def run(scenario, mesh, steps, preconditioner):
 
 COLUMNS = ["scenario", "mesh", "tets", "dofs", "preconditioner", "median_ms", "p99_ms",
            "steps_per_s", "setup_ms", "solve_ms", "cg_iters_median", "cg_hit_cap", "refactors",
-           "compile_s"]
+           "contacts_median", "collision_ms", "compile_s"]
 
 
 def format_table(rows):
@@ -178,8 +181,11 @@ def main(argv=None):
     if a.steps < 1:
         ap.error(f"--steps={a.steps}: must be >= 1")
     precs = list(PRECONDITIONERS) if a.all_preconditioners else (a.preconditioner or ["factor"])
-    rows = [run(s, m, a.steps, p) for m in (a.mesh or ["coarse", "fine"])
-            for s in (a.scenario or ["free", "press"]) for p in precs]
+    try:
+        rows = [run(s, m, a.steps, p) for m in (a.mesh or ["coarse", "fine"])
+                for s in (a.scenario or ["free", "press"]) for p in precs]
+    except ValueError as e:
+        ap.error(str(e))
     print(json.dumps(rows, indent=1) if a.json else format_table(rows))
     return 0
 

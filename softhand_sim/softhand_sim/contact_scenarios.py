@@ -1,15 +1,24 @@
-"""Scripted contact scenarios on a hand (HandAsset or the bench's box hand): used by
-`softhand bench --scenario grasp` and the contact tests.
+"""Scripted contact scenarios on the hand model: used by `softhand bench --scenario grasp` and
+the contact tests.
 
-The hand is in its rest pose (right hand, palm down, dorsal +z, fingers along +x, thumb toward
-+y). A 0.1 kg ball (r = 4 cm) is placed under the palm; its hand-side body is coupled by Eq. 14
-to an engine copy that stays where the ball started (the world node's role, scripted here). The
-fingers flex by a ramp of their bone targets around the ball: flexion is a rotation about the
-joint's flex axis (bone y, positive curls toward the palm, -z).
+The hand starts in its rest pose (right hand, palm down, dorsal +z, fingers along +x, thumb
+toward +y, wrist at the origin). A 0.1 kg ball (r = 4 cm) is the model's rigid object; its
+hand-side body is coupled by Eq. 14 to an engine copy scripted here (the world node's role).
+
+- `PinchLift`: the issue's grasp. Thumb and index pads pinch the ball (pose PINCH_*, found by
+  tools/pinch_pose.py), the copy lets go, the hand lifts 10 cm, holds 5 s and opens.
+  `PinchScenario` runs it for the bench (`--scenario grasp`).
+- `ball_under_palm` / `flexed_targets`: the ball against the palm, every joint flexed by one
+  angle about its flexion axis (bone y, positive curls toward the palm, -z).
 """
+from __future__ import annotations
+
+import dataclasses
+
 import numpy as np
 
 from . import contact
+from .kinematic_hand import DIGIT_LIMITS, forward_kinematics
 from .rotations import quat_exp, quat_mul, quat_to_matrix
 from .scene import Scene, SceneObject, shape_inertia
 
@@ -49,35 +58,166 @@ def flexed_targets(rest, flex, bones=FINGER_BONES):
     return tgt
 
 
-class GraspScenario:
-    """setup(solver, state) -> update(k, t), for bench.SCENARIOS; `objects(asset)` gives the ball
-    as the model's rigid object. Over `close_time` [s] the fingers close to `flex` [rad] per joint
-    and the tracked hand moves `squeeze` [m] down into the ball (a firm grasp: the ball's engine
-    copy, 170 N/m, holds it against the palm; ~100 skin contacts on the hand model)."""
+# ---------------------------------------------------------------------------- thumb-index pinch
+#
+# A precision pinch of the ball between the pads of the thumb and the index finger, the other
+# fingers straight. The pose was found by tools/pinch_pose.py: a differential-evolution search
+# over the thumb's and the index's four angles (within DIGIT_LIMITS) and the ball centre, on the
+# hand model's skin carried rigidly by its bones (softhand_sim.handmodel.rigid_skin), asking
+# that the distal pads of both digits reach PINCH_DEPTH into the ball, face it, and meet it at
+# opposite ends of a line through its centre (the only two-finger grip in which the squeeze
+# itself puts no torque on the ball), that line level with the palm (palm down, the squeeze
+# pushes the ball neither up nor down: it hangs between the pads on friction alone), and that
+# every other skin point stay clear of it. `pinch_report` checks it.
+PINCH_TOUCH_DEG = np.array([               # (abduction, flex_1, flex_2, flex_3) [deg]
+    [33.00, -1.15, -5.93, 33.46],          # thumb
+    [-16.23, 23.22, 48.45, 47.03]])        # index
+PINCH_BALL_IN_PALM = np.array([0.0970, 0.0472, -0.0533])   # [m] ball centre, palm frame
+PINCH_DEPTH = 0.004       # [m] pads into the ball at PINCH_TOUCH_DEG (rigid skin)
+PINCH_OPEN = 0.6          # [-] open pre-shape: flexions this fraction of the way back to their lower limit
+PINCH_SQUEEZE = 0.1       # [-] squeeze: touch plus this fraction of (touch - open)
+PINCH_DIGITS = ((1, 2, 3), (4, 5, 6))      # the bones of the thumb and of the index
 
-    def __init__(self, flex=0.8, close_time=0.5, press=0.004, squeeze=0.05):
-        self.flex, self.close_time, self.press, self.squeeze = flex, close_time, press, squeeze
-        self.system = None
-        self.asset = None
+
+def pinch_angles():
+    """(open, touch, squeeze) digit angles (5, 4) [rad] of the thumb-index pinch; the middle,
+    ring and little fingers straight (all zero) in all three."""
+    lo, hi = DIGIT_LIMITS[:, :, 0], DIGIT_LIMITS[:, :, 1]
+    touch = np.zeros((5, 4))
+    touch[:2] = np.deg2rad(PINCH_TOUCH_DEG)
+    opened = touch.copy()
+    opened[:2, 1:] = touch[:2, 1:] - PINCH_OPEN * (touch[:2, 1:] - lo[:2, 1:])
+    squeeze = np.clip(touch + PINCH_SQUEEZE * (touch - opened), lo, hi)
+    return opened, touch, squeeze
+
+
+def pinch_report(skin, palm_pose, angles, center, radius=BALL_RADIUS):
+    """How the skin (a softhand_sim.handmodel.rigid_skin.RigidSkin) of the kinematic hand at
+    palm_pose / angles (5, 4) meets a ball: dict of
+    depth (2,) [m] deepest thumb / index distal-pad point inside the ball (negative: a gap);
+    push (2, 3) unit direction from that point to the ball centre;
+    facing (2,) cosine between that point's outward skin normal and its push direction;
+    lift (2,): the push directions' part along the palm's dorsal axis (palm down: positive pushes
+    the ball up, the pad is below its equator);
+    grip_cos: cosine between the two push directions (-1: opposite ends of a diameter);
+    others_gap [m]: smallest gap of every skin point off the thumb's and index's last two bones."""
+    _, bones = forward_kinematics(palm_pose, angles)
+    points, normals = skin.pose(bones)
+    center = np.asarray(center, dtype=np.float64)
+    gap = np.linalg.norm(points - center, axis=1) - radius
+    depth, push, facing = np.empty(2), np.empty((2, 3)), np.empty(2)
+    for k, digit in enumerate(PINCH_DIGITS):
+        pad = skin.on_bones(digit[-1:])
+        i = np.flatnonzero(pad)[np.argmin(gap[pad])]
+        depth[k] = -gap[i]
+        push[k] = (center - points[i]) / np.linalg.norm(center - points[i])
+        facing[k] = normals[i] @ push[k]
+    others = ~skin.on_bones(PINCH_DIGITS[0][1:] + PINCH_DIGITS[1][1:])
+    dorsal = quat_to_matrix(np.asarray(palm_pose, dtype=np.float64)[3:])[:, 2]
+    return {"depth": depth, "push": push, "facing": facing, "lift": push @ dorsal,
+            "grip_cos": float(push[0] @ push[1]),
+            "others_gap": float(gap[others].min())}
+
+
+def _smooth(u):
+    """Smoothstep of u clipped to [0, 1]: zero velocity at both ends of a ramp."""
+    u = min(max(u, 0.0), 1.0)
+    return u * u * (3.0 - 2.0 * u)
+
+
+class PinchLift:
+    """The thumb-index pinch as a timed script [s] on the hand at rest (palm = world frame):
+
+    0 .. T_CLOSE        the pads close from the open pre-shape to the squeeze;
+    T_RELEASE           the ball's engine copy lets go (Eq. 14 stiffness to 0): the pads carry it;
+    T_START .. T_LIFT   the palm rises LIFT [m] (smoothstep);
+    T_LIFT .. T_HOLD    hold (5 s);
+    T_HOLD .. T_OPEN    the pads open back to the pre-shape: the ball falls.
+    """
+
+    T_CLOSE, T_RELEASE, T_START, T_LIFT, T_HOLD, T_OPEN = 0.6, 1.0, 1.3, 2.3, 7.3, 7.8
+    LIFT = 0.10  # [m]
+    SETTLE_STEPS = 40
+
+    def __init__(self, asset, squeeze=PINCH_SQUEEZE, friction=0.5):
+        self.palm = np.asarray(asset.bone_rest_pose[0], dtype=np.float64)
+        self.opened, touch, _ = pinch_angles()
+        lo, hi = DIGIT_LIMITS[:, :, 0], DIGIT_LIMITS[:, :, 1]
+        self.squeezed = np.clip(touch + squeeze * (touch - self.opened), lo, hi)
+        centre = self.palm[:3] + quat_to_matrix(self.palm[3:]) @ PINCH_BALL_IN_PALM
+        self.ball = dataclasses.replace(ball_object(centre), friction=float(friction))
+
+    def digit_angles(self, t):
+        """(5, 4) digit angles [rad] at time t."""
+        if t < self.T_HOLD:
+            return self.opened + _smooth(t / self.T_CLOSE) * (self.squeezed - self.opened)
+        return self.squeezed + _smooth((t - self.T_HOLD) / (self.T_OPEN - self.T_HOLD)) * (self.opened - self.squeezed)
+
+    def bone_targets(self, t):
+        """(16, 7) intermediate-bone targets at time t."""
+        palm = self.palm.copy()
+        palm[2] += self.LIFT * _smooth((t - self.T_START) / (self.T_LIFT - self.T_START))
+        return forward_kinematics(palm, self.digit_angles(t))[1]
+
+    def attach(self, solver, state, asset):
+        """Contact for the ball (returns the ContactSystem); settles the soft hand into the open
+        pre-shape with the ball parked 0.5 m below, then puts the ball and its copy between the pads."""
+        model = solver.model
+        ball_body = model.bone_count
+        system = contact.attach(solver, Scene(-1.0, self.ball.friction, (self.ball,)), asset)
+        parked = self.ball.pose.copy()
+        parked[2] -= 0.5
+        state.set_body_pose(model, ball_body, parked)
+        solver.set_object_targets(parked[None])
+        solver.set_bone_targets(self.bone_targets(0.0))
+        for _ in range(self.SETTLE_STEPS):
+            solver.step(state, 0.01)
+        state.set_body_pose(model, ball_body, self.ball.pose.copy())
+        # the copy holds the ball m g / kx higher, so that the hand-side ball hangs where planned
+        self.copy_pose = self.ball.pose.copy()
+        gravity = np.asarray(model.params["gravity"], dtype=np.float64)
+        self.copy_pose[:3] -= self.ball.mass * gravity / model.body_target_kx[ball_body]
+        solver.set_object_targets(self.copy_pose[None])
+        return system
+
+    def drive(self, solver, t, dt):
+        """Set the targets of the step that starts at t (and let the ball go at T_RELEASE)."""
+        if t <= self.T_RELEASE < t + dt:
+            solver.set_object_targets(self.copy_pose[None], kx=0.0, ktheta=0.0)
+        solver.set_bone_targets(self.bone_targets(t))
+
+
+def sim_node_solver_params():
+    """The solver parameters sim_node runs with (config/softhand.yaml): hand gravity off, the
+    palm coupled at tracking_kx 500 N/m (see the yaml for why these depart from the paper)."""
+    from .params import load_params
+    from .sim_runtime import solver_params
+    return solver_params(load_params("sim_node"))
+
+
+class PinchScenario:
+    """`softhand bench --scenario grasp`: the PinchLift script from its first step, with
+    sim_node's solver parameters (a firm grasp: ~240 skin contacts on the two pads once closed;
+    300 steps reach the hold)."""
+
+    def __init__(self):
+        self.asset, self.script, self.system = None, None, None
+
+    def params(self):
+        return sim_node_solver_params()
 
     def objects(self, asset):
         """The model's rigid objects for this hand (remembers the asset for the skin points)."""
+        if getattr(asset, "skin_triangles", None) is None:
+            raise ValueError("the grasp scenario needs the hand model (--mesh coarse or fine), "
+                             "not the box hand: its pinch pose is planned on the hand's skin")
         self.asset = asset
-        return [ball_object(ball_under_palm(asset, self.press))]
+        self.script = PinchLift(asset)
+        return [self.script.ball]
 
-    def __call__(self, solver, state, asset=None):
-        model = solver.model
-        asset = self.asset if asset is None else asset
-        ball_pose = model.body_rest_pose[model.bone_count].copy()
-        ball = ball_object(ball_pose[:3])
-        scene = Scene(-1.0, 0.5, (ball,))  # the hand floats at the origin: ground out of reach
-        self.system = contact.attach(solver, scene, asset)
-        solver.set_object_targets(ball_pose[None, :])
-        rest = model.body_rest_pose[:model.bone_count].copy()
+    def __call__(self, solver, state):
+        self.system = self.script.attach(solver, state, self.asset)
 
         def update(k, t):
-            ramp = min(1.0, t / self.close_time)
-            tgt = flexed_targets(rest, self.flex * ramp)
-            tgt[:, 2] -= self.squeeze * ramp  # the tracked hand presses down into the ball
-            solver.set_bone_targets(tgt)
+            self.script.drive(solver, t, 0.01)
         return update

@@ -1,0 +1,67 @@
+#!/usr/bin/env python3
+"""Draw the thumb-index pinch (contact_scenarios.PinchLift on the coarse hand, sim_node's solver
+parameters) as a strip of key frames: open, closed, lifted, held 5 s, released.
+
+    python tools/pinch_picture.py [OUT.png]      # default docs/img/pinch.png
+"""
+import argparse
+import sys
+
+import numpy as np
+
+from softhand_sim import contact_scenarios as cs
+from softhand_sim import handmodel
+from softhand_sim.handmodel.render import draw_scene
+from softhand_sim.model import build_model
+from softhand_sim.solver import Solver
+
+DT = 0.01
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("out", nargs="?", default="docs/img/pinch.png", help="PNG to write")
+    parser.add_argument("--view", type=float, nargs=2, default=(60.0, -10.0), metavar=("AZ", "EL"),
+                        help="camera azimuth and elevation [deg]")
+    args = parser.parse_args(argv)
+    asset = handmodel.load_or_build_hand()
+    script = cs.PinchLift(asset)
+    model = build_model(asset, cs.sim_node_solver_params(), objects=[script.ball])
+    solver = Solver(model)
+    state = model.initial_state()
+    system = script.attach(solver, state, asset)
+    keys = {0.0: "open", script.T_CLOSE + 0.2: "pinched", script.T_LIFT: "lifted 10 cm",
+            script.T_HOLD - DT: "held 5 s", script.T_HOLD + 0.3: "opening: it falls"}
+    key_steps = {int(round(t / DT)): title for t, title in keys.items()}
+    skin = np.empty((len(model.skin_tet), 3))
+    frames, objects, titles = [], [], []
+    for k in range(max(key_steps) + 1):
+        if k in key_steps:
+            solver.skin_positions(state, skin)
+            ball_pose = np.r_[state.body_x[-1], state.body_q[-1]]
+            frames.append(skin.copy())
+            objects.append([(script.ball.shape, script.ball.dims, ball_pose)])
+            titles.append(f"t = {k * DT:.1f} s: {key_steps[k]} ({system.count} contacts)")
+        script.drive(solver, k * DT, DT)
+        solver.step(state, DT)
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    fig, axes = plt.subplots(1, len(frames), figsize=(3.2 * len(frames), 3.0), dpi=100)
+    for ax, v, objs, title in zip(axes, frames, objects, titles):
+        draw_scene(ax, v, asset.skin_triangles, objs, view=tuple(args.view))
+        ax.set_title(title, fontsize=9)
+    # one scale for every panel, so the lift and the fall show
+    lo = np.min([[ax.get_xlim()[0], ax.get_ylim()[0]] for ax in axes], axis=0)
+    hi = np.max([[ax.get_xlim()[1], ax.get_ylim()[1]] for ax in axes], axis=0)
+    for ax in axes:
+        ax.set_xlim(lo[0], hi[0])
+        ax.set_ylim(lo[1], hi[1])
+    fig.tight_layout()
+    fig.savefig(args.out)
+    print(f"wrote {args.out}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
