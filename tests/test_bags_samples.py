@@ -18,7 +18,7 @@ REPO = Path(__file__).resolve().parents[1]
 BAGS = REPO / "bags"
 TOPIC = "/tracker/hand_joints"
 MSGTYPE = "geometry_msgs/msg/PoseArray"
-NAMES = ("grasp_lift", "squeeze", "press_table", "fast_dropout", "grasp_short")
+NAMES = ("grasp_lift", "squeeze", "press_table", "fast_dropout", "grasp_short", "pinch_lift")
 
 
 def _expected_lengths():
@@ -42,7 +42,7 @@ def bag(request):
 
 
 def test_bags_exist_and_are_small():
-    """All five sample bags exist as mcap rosbag2 directories, together under 10 MB."""
+    """Every sample bag exists as an mcap rosbag2 directory, all of them together under 10 MB."""
     total = 0
     for name in NAMES:
         files = {p.suffix for p in (BAGS / name).iterdir()}
@@ -159,8 +159,9 @@ def test_grasp_cages_the_ball():
 def test_generation_is_deterministic(tmp_path):
     """tools/make_bags.py writes byte-identical messages to those shipped in bags/."""
     subprocess.run([sys.executable, str(REPO / "tools" / "make_bags.py"), "--out", str(tmp_path),
-                    "--only", "grasp_short"], check=True, capture_output=True, timeout=60)
-    new = read_topic(tmp_path / "grasp_short", TOPIC, MSGTYPE)
-    old = read_topic(BAGS / "grasp_short", TOPIC, MSGTYPE)
-    assert new.stamps_ns == old.stamps_ns
-    assert new.payloads == old.payloads
+                    "--only", "grasp_short", "pinch_lift"], check=True, capture_output=True, timeout=60)
+    for name in ("grasp_short", "pinch_lift"):
+        new = read_topic(tmp_path / name, TOPIC, MSGTYPE)
+        old = read_topic(BAGS / name, TOPIC, MSGTYPE)
+        assert new.stamps_ns == old.stamps_ns, name
+        assert new.payloads == old.payloads, name

@@ -77,7 +77,7 @@ def check_recording_opens_everywhere(bag_dir):
     return decoded
 
 
-@pytest.mark.parametrize("bag", ["grasp_lift", "squeeze", "press_table", "fast_dropout"])
+@pytest.mark.parametrize("bag", ["grasp_lift", "squeeze", "press_table", "fast_dropout", "pinch_lift"])
 def test_every_bag_rates_finite_and_readable(tmp_path, bag):
     """/hand/bones and /hand/intermediate_bones come at their rates, all values finite, bag readable."""
     params = SKIN_PARAMS if bag == "press_table" else None
@@ -88,7 +88,7 @@ def test_every_bag_rates_finite_and_readable(tmp_path, bag):
     assert summary["all_finite"], summary
     decoded = check_recording_opens_everywhere(out / "bag")
     assert decoded == summary["bag_messages"]
-    if bag == "grasp_lift":
+    if bag in ("grasp_lift", "pinch_lift"):
         check_grasp(out / "bag")
     if bag == "press_table":
         check_press(out / "bag")

@@ -77,3 +77,19 @@ def test_squeeze_holds_the_ball_on_the_table_and_lets_go():
     assert np.abs(r.ball_engine[:, 2] - r.ball_z0).max() < 0.001
     assert np.all(r.ball_contacts[r.t > bag_synth.squeeze().duration] == 0)
     assert r.rejected_steps == 0
+
+
+def test_pinch_lift_lifts_holds_and_drops_the_ball():
+    """pinch_lift (thumb-index pinch, palm down, 12 cm wrist lift): the engine ball rises >= 8 cm
+    and stays >= 8 cm up through the 3 s hold, pinched all along (>= 20 skin contacts), moves
+    < 1 cm relative to the palm, and is back on the table after the pads open."""
+    r = run_pipeline("pinch_lift")
+    t0, t1 = bag_synth.pinch_lift().phases["hold"]
+    s = r.summary(hold_window=(t0, t1))
+    window = (r.t >= t0) & (r.t <= t1)
+    assert s["ball_lift_max_m"] >= 0.08
+    assert np.all(r.ball_engine[window, 2] - r.ball_z0 >= 0.08)
+    assert np.all(r.ball_contacts[window] >= 20)
+    assert s["hold_slip_mm"] < 10.0
+    assert abs(r.ball_engine[-1, 2] - r.ball_z0) < 0.001
+    assert r.rejected_steps == 0

@@ -12,7 +12,10 @@ until their pads touch the ball below its equator all around it, then squeezed d
 then lifted. `digit_depths` / `closure_for_depth` measure (or search) how deep each digit's bone
 capsules (radius DIGIT_RADIUS) go into the ball for a closure.
 
-Scenarios (name -> Scenario): grasp_lift, squeeze, press_table, fast_dropout, grasp_short.
+The pinch bag (pinch_lift) uses the thumb-index pinch of softhand_sim.contact_scenarios.
+
+Scenarios (name -> Scenario): grasp_lift, squeeze, press_table, fast_dropout, grasp_short,
+pinch_lift.
 """
 from __future__ import annotations
 
@@ -22,6 +25,7 @@ import numpy as np
 
 from softhand_sim.rotations import quat_conj, quat_exp, quat_log, quat_mul, quat_to_matrix
 
+from softhand_sim.contact_scenarios import PINCH_BALL_IN_PALM, pinch_angles
 from softhand_sim.kinematic_hand import DEFAULT_DIMS, DIGIT_LIMITS, forward_kinematics
 
 BALL_CENTER = np.array([0.0, 0.0, 0.79])   # [m] config/scene.yaml
@@ -260,6 +264,32 @@ def grasp_short():
     return _cage_motion(None, 0.12, 1.5, 1.0, 0.0)
 
 
+# ---------------------------------------------------------------------------- thumb-index pinch
+#
+# The pinch of the solver's contact tests (softhand_sim.contact_scenarios.PINCH_*: pads at the
+# ball's equator, the grip line level, the other fingers straight), palm down over the ball on
+# the table: come down with the pads open, close them on the ball, squeeze, lift, hold, open
+# (the ball drops back onto the table), retreat.
+PINCH_LIFT = 0.12   # [m] wrist lift of pinch_lift (the ball rises ~2 cm less: the palm's coupling
+                    # sags under the ball's weight, carried twice, Sect. 3.7)
+PINCH_HOLD = 3.0    # [s]
+
+
+def pinch_lift():
+    opened, touch, squeeze = pinch_angles()
+    q = PALM_DOWN
+    wrist = BALL_CENTER - [0.0, 0.0, CAGE_SAG] - quat_to_matrix(q) @ PINCH_BALL_IN_PALM
+    up = wrist + [0.0, 0.0, PINCH_LIFT]
+    k = Keyframes().add(0.0, wrist + [0.0, 0.0, 0.08], opened, q).add(1.5, wrist, opened, q)
+    k.add(2.5, wrist, touch, q).add(3.0, wrist, squeeze, q).add(3.3, wrist, squeeze, q)
+    k.add(4.8, up, squeeze, q).add(4.8 + PINCH_HOLD, up, squeeze, q)
+    k.phases["hold"] = (4.8, 4.8 + PINCH_HOLD)
+    t = 4.8 + PINCH_HOLD
+    k.add(t + 0.8, up, opened, q)
+    k.phases["release"] = (t, t + 0.8)
+    return k.add(t + 1.8, up + [0.0, 0.0, 0.05], opened, q)
+
+
 PRESS_DEPTH = 0.03  # [m] joints of the palm and fingers below the table top at the deepest
 
 
@@ -325,6 +355,7 @@ SCENARIOS = {
     "press_table": Scenario(press_table, 95.0, seed=3),
     "fast_dropout": Scenario(FastMotion, 120.0, gap=FAST_GAP, seed=4),
     "grasp_short": Scenario(grasp_short, 100.0, seed=5),
+    "pinch_lift": Scenario(pinch_lift, 100.0, seed=6),
 }
 
 TIMING_JITTER = 0.0015   # [s] uniform +- jitter of each capture time around the nominal period
