@@ -26,7 +26,7 @@ import numpy as np
 from softhand_sim.rotations import quat_conj, quat_exp, quat_log, quat_mul, quat_to_matrix
 
 from softhand_sim.contact_scenarios import PINCH_BALL_IN_PALM, pinch_angles
-from softhand_sim.kinematic_hand import DEFAULT_DIMS, DIGIT_LIMITS, forward_kinematics
+from softhand_sim.kinematic_hand import DIGIT_LIMITS, forward_kinematics
 
 BALL_CENTER = np.array([0.0, 0.0, 0.79])   # [m] config/scene.yaml
 BALL_RADIUS = 0.04                           # [m]
