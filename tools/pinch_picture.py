@@ -11,7 +11,7 @@ import numpy as np
 
 from softhand_sim import contact_scenarios as cs
 from softhand_sim import handmodel
-from softhand_sim.handmodel.render import draw_scene
+from softhand_sim.handmodel.render import render_frames
 from softhand_sim.model import build_model
 from softhand_sim.solver import Solver
 
@@ -44,21 +44,8 @@ def main(argv=None):
             titles.append(f"t = {k * DT:.1f} s: {key_steps[k]} ({system.count} contacts)")
         script.drive(solver, k * DT, DT)
         solver.step(state, DT)
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    fig, axes = plt.subplots(1, len(frames), figsize=(3.2 * len(frames), 3.0), dpi=100)
-    for ax, v, objs, title in zip(axes, frames, objects, titles):
-        draw_scene(ax, v, asset.skin_triangles, objs, view=tuple(args.view))
-        ax.set_title(title, fontsize=9)
-    # one scale for every panel, so the lift and the fall show
-    lo = np.min([[ax.get_xlim()[0], ax.get_ylim()[0]] for ax in axes], axis=0)
-    hi = np.max([[ax.get_xlim()[1], ax.get_ylim()[1]] for ax in axes], axis=0)
-    for ax in axes:
-        ax.set_xlim(lo[0], hi[0])
-        ax.set_ylim(lo[1], hi[1])
-    fig.tight_layout()
-    fig.savefig(args.out)
+    render_frames(frames, asset.skin_triangles, args.out, objects, view=tuple(args.view), titles=titles,
+                  panel_px=(320, 300), same_scale=True)  # one scale: the lift and the fall show
     print(f"wrote {args.out}")
     return 0
 

@@ -119,9 +119,9 @@ def pinch_report(skin, palm_pose, angles, center, radius=BALL_RADIUS):
             "others_gap": float(gap[others].min())}
 
 
-def _smooth(u):
-    """Smoothstep of u clipped to [0, 1]: zero velocity at both ends of a ramp."""
-    u = min(max(u, 0.0), 1.0)
+def smoothstep(u):
+    """C1 ease 0 -> 1 of u clipped to [0, 1], zero slope at both ends (ramps of scripted motions)."""
+    u = np.clip(u, 0.0, 1.0)
     return u * u * (3.0 - 2.0 * u)
 
 
@@ -150,13 +150,13 @@ class PinchLift:
     def digit_angles(self, t):
         """(5, 4) digit angles [rad] at time t."""
         if t < self.T_HOLD:
-            return self.opened + _smooth(t / self.T_CLOSE) * (self.squeezed - self.opened)
-        return self.squeezed + _smooth((t - self.T_HOLD) / (self.T_OPEN - self.T_HOLD)) * (self.opened - self.squeezed)
+            return self.opened + smoothstep(t / self.T_CLOSE) * (self.squeezed - self.opened)
+        return self.squeezed + smoothstep((t - self.T_HOLD) / (self.T_OPEN - self.T_HOLD)) * (self.opened - self.squeezed)
 
     def bone_targets(self, t):
         """(16, 7) intermediate-bone targets at time t."""
         palm = self.palm.copy()
-        palm[2] += self.LIFT * _smooth((t - self.T_START) / (self.T_LIFT - self.T_START))
+        palm[2] += self.LIFT * smoothstep((t - self.T_START) / (self.T_LIFT - self.T_START))
         return forward_kinematics(palm, self.digit_angles(t))[1]
 
     def attach(self, solver, state, asset):

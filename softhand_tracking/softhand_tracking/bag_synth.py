@@ -25,7 +25,7 @@ import numpy as np
 
 from softhand_sim.rotations import quat_conj, quat_exp, quat_log, quat_mul, quat_to_matrix
 
-from softhand_sim.contact_scenarios import PINCH_BALL_IN_PALM, pinch_angles
+from softhand_sim.contact_scenarios import PINCH_BALL_IN_PALM, pinch_angles, smoothstep
 from softhand_sim.kinematic_hand import DIGIT_LIMITS, forward_kinematics
 
 BALL_CENTER = np.array([0.0, 0.0, 0.79])   # [m] config/scene.yaml
@@ -92,11 +92,6 @@ def closure_for_depth(palm_pose, depth, center=BALL_CENTER, radius=BALL_RADIUS) 
 # ---------------------------------------------------------------------------- keyframed motion
 
 
-def _smooth(u):
-    """C1 ease 0 -> 1 with zero slope at both ends."""
-    u = np.clip(u, 0.0, 1.0)
-    return u * u * (3.0 - 2.0 * u)
-
 
 @dataclass
 class Keyframes:
@@ -130,7 +125,7 @@ class Keyframes:
         else:
             i = max(j for j in range(len(keys)) if keys[j][0] <= t)
             k0, k1 = keys[i], keys[i + 1]
-            u = _smooth((t - k0[0]) / (k1[0] - k0[0]))
+            u = smoothstep((t - k0[0]) / (k1[0] - k0[0]))
         pos = k0[1] + u * (k1[1] - k0[1])
         q = quat_mul(quat_exp(u * quat_log(quat_mul(k1[2], quat_conj(k0[2])))), k0[2])
         return np.r_[pos, q], k0[3] + u * (k1[3] - k0[3])
@@ -328,7 +323,7 @@ class FastMotion:
         self.amp_y *= FAST_PEAK_SPEED / peak
 
     def envelope(self, t):
-        return _smooth((t - 0.5) / 1.0) * _smooth((5.5 - t) / 1.0)
+        return smoothstep((t - 0.5) / 1.0) * smoothstep((5.5 - t) / 1.0)
 
     def __call__(self, t):
         e = self.envelope(t)

@@ -130,8 +130,9 @@ def scene_to_rgb(skin_vertices, skin_triangles, objects=(), view="dorsal", size_
 
 
 def render_frames(skin_vertices_sequence, skin_triangles, path, objects_sequence=None, view="side",
-                  titles=None, panel_px=(360, 300), dpi=100):
-    """Write a PNG strip with one panel per posed skin (and its objects) of a sequence."""
+                  titles=None, panel_px=(360, 300), dpi=100, same_scale=False):
+    """Write a PNG strip with one panel per posed skin (and its objects) of a sequence.
+    same_scale: one set of axis limits for every panel (motion between panels shows)."""
     n = len(skin_vertices_sequence)
     fig, axes = plt.subplots(1, n, figsize=(panel_px[0] * n / dpi, panel_px[1] / dpi), dpi=dpi,
                              squeeze=False)
@@ -140,6 +141,12 @@ def render_frames(skin_vertices_sequence, skin_triangles, path, objects_sequence
         draw_scene(axes[0, i], v, skin_triangles, objs, view)
         if titles is not None:
             axes[0, i].set_title(titles[i], fontsize=9)
+    if same_scale:
+        lo = np.min([[ax.get_xlim()[0], ax.get_ylim()[0]] for ax in axes[0]], axis=0)
+        hi = np.max([[ax.get_xlim()[1], ax.get_ylim()[1]] for ax in axes[0]], axis=0)
+        for ax in axes[0]:
+            ax.set_xlim(lo[0], hi[0])
+            ax.set_ylim(lo[1], hi[1])
     fig.tight_layout()
     fig.savefig(path)
     plt.close(fig)
