@@ -146,7 +146,8 @@ def format_summary(s, out_dir):
         "  rates [Hz]: " + ", ".join(f"{k} {v:.1f}" for k, v in r.items()),
         f"  sim step: p50 {s.get('sim_step_ms_p50', float('nan')):.2f} ms, p99 {s.get('sim_step_ms_p99', float('nan')):.2f} ms",
         f"  tracker -> /hand/bones latency: p50 {s.get('latency_ms_p50', float('nan')):.1f} ms, "
-        f"p99 {s.get('latency_ms_p99', float('nan')):.1f} ms",
+        f"p99 {s.get('latency_ms_p99', float('nan')):.1f} ms (first /hand/bones "
+        f"{s.get('startup_s', float('nan')):.2f} s after the first tracker frame)",
         f"  max active contacts: {s.get('max_contacts', 0)}",
         f"  ball: lifted {100 * s.get('ball_lift_m', 0.0):.1f} cm (lifted >= 8 cm: {s.get('ball_lifted', False)})",
         f"  recording: {s.get('bag_messages', 0)} messages, {s.get('bag_mb', 0.0):.1f} MB, all values finite: "

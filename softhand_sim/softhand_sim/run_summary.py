@@ -2,9 +2,11 @@
 
 Measured, not reported by the nodes alone:
 - rates [Hz] of every recorded topic from the recorder's receive times;
-- tracker -> /hand/bones latency: for each tracker frame, the time until the first /hand/bones
-  message received after it (the delay before the simulated skeleton can reflect that frame;
-  it spans one tracking period and one sim period plus transport);
+- tracker -> /hand/bones latency: for each tracker frame received after the first /hand/bones,
+  the time until the next /hand/bones message (the delay before the simulated skeleton can
+  reflect that frame; it spans one tracking period and one sim period plus transport). Frames
+  before the first /hand/bones only measure start-up: that wait is `startup_s` (first tracker
+  frame -> first /hand/bones);
 - sim step time p50/p99 from sim_node's own /diagnostics;
 - max active contacts from /hand/contacts; ball lift from the engine side /world/object_states;
 - finiteness of every numeric field of every recorded message.
@@ -46,6 +48,17 @@ def _pointcloud_fields(msg):
     from .ros_msgs import pointcloud_to_structured
 
     return pointcloud_to_structured(msg)
+
+
+def frame_latency_ms(tracker_t, bones_t):
+    """(latency [ms] per tracker frame received after the first /hand/bones: time to the next
+    /hand/bones, startup_s: first tracker frame -> first /hand/bones [s]) from receive times [s]."""
+    if not len(tracker_t) or not len(bones_t):
+        return np.empty(0), float("nan")
+    b, tr = np.asarray(bones_t, dtype=np.float64), np.asarray(tracker_t, dtype=np.float64)
+    idx = np.searchsorted(b, tr, side="right")
+    ok = (idx < b.size) & (tr >= b[0])
+    return (b[idx[ok]] - tr[ok]) * 1e3, float(b[0] - tr[0])
 
 
 def summarize_run(bag_dir, bag_name="", exit_codes=None):
@@ -100,12 +113,7 @@ def summarize_run(bag_dir, bag_name="", exit_codes=None):
     for topic, ts in sorted(times.items()):
         if len(ts) > 1 and ts[-1] > ts[0]:
             rates[topic] = (len(ts) - 1) / (ts[-1] - ts[0])
-    latency = []
-    if tracker_t and bones_t:
-        b = np.asarray(bones_t)
-        idx = np.searchsorted(b, np.asarray(tracker_t), side="right")
-        ok = idx < b.size
-        latency = (b[idx[ok]] - np.asarray(tracker_t)[ok]) * 1e3
+    latency, startup_s = frame_latency_ms(tracker_t, bones_t)
     size = sum(f.stat().st_size for f in bag_dir.rglob("*") if f.is_file())
     summary.update({
         "bag_messages": count,
@@ -119,6 +127,7 @@ def summarize_run(bag_dir, bag_name="", exit_codes=None):
         "sim_step_ms_p99_worst_window": float(np.max(step_p99)) if step_p99 else float("nan"),
         "latency_ms_p50": float(np.percentile(latency, 50)) if len(latency) else float("nan"),
         "latency_ms_p99": float(np.percentile(latency, 99)) if len(latency) else float("nan"),
+        "startup_s": startup_s,
         "max_contacts": max_contacts,
         "ball_lift_m": float(max(ball_z) - ball_z[0]) if ball_z else 0.0,
         "ball_lifted": bool(ball_z and max(ball_z) - ball_z[0] >= 0.08),
