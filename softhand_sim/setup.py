@@ -36,7 +36,7 @@ setup(
             "record_node = softhand_sim.record_node:main",
             "softhand-sim = softhand_sim.sim_node:main",
             "softhand-record = softhand_sim.record_node:main",
-            "softhand = softhand_sim.cli:main",
+            "softhand = softhand_sim.commands.cli:main",
         ],
     },
 )

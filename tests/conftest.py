@@ -1,14 +1,12 @@
 """Shared fixtures. Every ROS process a test starts gets loopback-only discovery and its own domain."""
 import os
-import sys
 from pathlib import Path
 
 import pytest
 
-REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO / "tests"))
+from softhand_sim.ros.env import apply_isolated_env, isolated_env, release_domain_id
 
-from softhand_sim.ros_env import apply_isolated_env, isolated_env, release_domain_id  # noqa: E402
+REPO = Path(__file__).resolve().parents[1]
 
 # The test process itself may start rclpy (in-process subscribers that watch the nodes): give it
 # an isolated domain before anything imports rclpy.

@@ -5,15 +5,15 @@
 
 Each bag is a rosbag2 directory with mcap storage, one topic /tracker/hand_joints of
 geometry_msgs/msg/PoseArray (26 OpenXR joints, header.frame_id "world", header.stamp = capture
-time = bag time). The motions are described in softhand_tracking/bag_synth.py.
+time = bag time). The motions are described in softhand_sim/scenarios/tracker_bags.py.
 """
 import argparse
 import shutil
 import sys
 from pathlib import Path
 
-from softhand_tracking.bag_synth import SCENARIOS, sample
-from softhand_sim.bagio import TYPESTORE, serialize, write_bag
+from softhand_sim.scenarios.tracker_bags import SCENARIOS, sample
+from softhand_sim.ros.bagio import TYPESTORE, serialize, write_bag
 
 TOPIC = "/tracker/hand_joints"
 MSGTYPE = "geometry_msgs/msg/PoseArray"

@@ -9,11 +9,11 @@ import sys
 
 import numpy as np
 
-from softhand_sim import contact_scenarios as cs
+from softhand_sim.scenarios import contact as cs
 from softhand_sim import handmodel
 from softhand_sim.handmodel.render import render_frames
-from softhand_sim.model import build_model
-from softhand_sim.solver import Solver
+from softhand_sim.physics.model import build_model
+from softhand_sim.physics.solver import Solver
 
 DT = 0.01
 

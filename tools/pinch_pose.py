@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Find (or check) the thumb-index pinch pose of softhand_sim.contact_scenarios (PINCH_*).
+"""Find (or check) the thumb-index pinch pose of softhand_sim.scenarios.contact (PINCH_*).
 
 Search: differential evolution (scipy) over the thumb's and the index's (abduction, flex_1,
 flex_2, flex_3) within DIGIT_LIMITS and the ball centre in the palm frame, on the default hand
@@ -22,8 +22,8 @@ import numpy as np
 
 from softhand_sim import handmodel
 from softhand_sim.handmodel.rigid_skin import RigidSkin
-from softhand_sim import contact_scenarios as cs
-from softhand_sim.kinematic_hand import DIGIT_LIMITS
+from softhand_sim.scenarios import contact as cs
+from softhand_sim.handmodel.kinematics import DIGIT_LIMITS
 
 OTHERS_CLEARANCE = 0.003  # [m]
 

@@ -16,7 +16,7 @@ the report go to OUT/soak.json; the report is printed, with the solver guard's r
 a warning when another run's nodes showed up on the same ROS domain (random ids can collide). Exit code 0 when every node stayed up, RSS
 was flat and no rate decayed, 1 otherwise.
 
-Processes run with loopback-only discovery on a private ROS_DOMAIN_ID (softhand_sim.ros_env).
+Processes run with loopback-only discovery on a private ROS_DOMAIN_ID (softhand_sim.ros.env).
 The recording (default: the light topics, no skin marker / vertices) is deleted at the end unless
 --keep-bag.
 """
@@ -35,10 +35,10 @@ from pathlib import Path
 
 import numpy as np
 
-from softhand_sim.demo import READY_TOPICS, ProcessSet, _script, resolve_bag
+from softhand_sim.commands.demo import READY_TOPICS, ProcessSet, console_script, resolve_bag
 from softhand_sim.paths import REPO_ROOT
-from softhand_sim.ros_env import apply_isolated_env, isolated_env
-from softhand_sim.ros_probe import wait_for_topics
+from softhand_sim.ros.env import apply_isolated_env, isolated_env
+from softhand_sim.ros.probe import wait_for_topics
 
 NODES = ("world", "sim", "tracking")  # started first; then record and play
 # (process, diagnostics status name, diagnostics key) of each rate taken from /diagnostics
@@ -70,7 +70,7 @@ class DiagnosticsWatch:
         from rclpy.context import Context
         from rclpy.executors import SingleThreadedExecutor
 
-        from softhand_sim.ros_common import PUB_QOS
+        from softhand_sim.ros.common import PUB_QOS
 
         self._rclpy = rclpy
         self.context = Context()
@@ -186,14 +186,14 @@ def run(args):
     samples, died, watch = [], [], None
     try:
         for name in NODES:
-            procs.start(name, [_script(f"softhand-{name}")])
+            procs.start(name, [console_script(f"softhand-{name}")])
         missing = wait_for_topics(READY_TOPICS, 600.0, procs)
         if missing:
             raise SystemExit(f"error: no publisher on {missing}; see {out / 'logs'}")
-        procs.start("record", [_script("softhand-record"), "-o", str(out / "bag"), "--topics", *RECORD_TOPICS,
+        procs.start("record", [console_script("softhand-record"), "-o", str(out / "bag"), "--topics", *RECORD_TOPICS,
                                "--ros-args", "-p", f"progress_period:={min(args.period, 5.0)}"])
         time.sleep(2.0)
-        procs.start("play", [_script("softhand-play"), str(bag), "--loop", "--wait-subscribers", "1"])
+        procs.start("play", [console_script("softhand-play"), str(bag), "--loop", "--wait-subscribers", "1"])
         watch = DiagnosticsWatch(int(env["ROS_DOMAIN_ID"]))
         t0 = time.monotonic()
         prev = None

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import yaml
 
-from .paths import default_config_file
+from softhand_sim.paths import default_config_file
 
 
 class _Loader(yaml.SafeLoader):

@@ -21,7 +21,7 @@ metadata.yaml, so every message that reached a callback is in the bag.
 SIGKILL cannot be caught: the mcap then has no summary and no metadata.yaml, but every chunk
 written before the kill is intact. The pending chunk is written every `flush_period` s (default
 1 s), so a SIGKILL loses at most about that much. Recover with
-`python -m softhand_sim.bagio recover BROKEN.mcap NEW_BAG` (softhand_sim.bagio.recover_mcap,
+`python -m softhand_sim.ros.bagio recover BROKEN.mcap NEW_BAG` (softhand_sim.ros.bagio.recover_mcap,
 it streams the intact chunks into a new bag) or `ros2 bag reindex` where ROS is installed.
 """
 from __future__ import annotations
@@ -34,11 +34,11 @@ import time
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
-from softhand_sim.ros_common import (LATCHED_TOPICS, TOPIC_TYPES, message_class, run_node,
+from softhand_sim.ros.common import (LATCHED_TOPICS, TOPIC_TYPES, message_class, run_node,
                                      split_cli)
 from softhand_sim.params import ParamError
-from softhand_sim.ros_params import declare_node_params
-from softhand_sim.bagio import BagError, add_topic, flush_chunk, known_type, open_writer
+from softhand_sim.ros.params import declare_node_params
+from softhand_sim.ros.bagio import BagError, add_topic, flush_chunk, known_type, open_writer
 
 #: Default topic list: every softhand topic of INTERFACE.md but the heavy /hand/skin_vertices.
 DEFAULT_TOPICS = [t for t in TOPIC_TYPES if t != "/hand/skin_vertices"]

@@ -16,9 +16,9 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from .params import safe_load
+from softhand_sim.params import safe_load
 
-from .paths import default_config_file
+from softhand_sim.paths import default_config_file
 
 SHAPES = ("sphere", "box", "capsule", "cylinder", "mesh")
 _REQUIRED_DIMS = {

@@ -3,7 +3,7 @@
 Subscribes /hand/intermediate_bones (bone targets, Sect. 3.6) and /world/object_states (engine
 copies, Sect. 3.7). Publishes /hand/bones, /hand/object_states, /hand/skin_vertices,
 /hand/skin_mesh (once, transient local), /hand/skin_marker, /hand/contacts, /diagnostics.
-All physics lives in softhand_sim.sim_runtime; this file converts messages and owns timers.
+All physics lives in softhand_sim.runtime; this file converts messages and owns timers.
 """
 from __future__ import annotations
 
@@ -19,11 +19,11 @@ from shape_msgs.msg import Mesh
 from trajectory_msgs.msg import MultiDOFJointTrajectory
 from visualization_msgs.msg import Marker
 
-from . import ros_msgs as rm
-from .params import ParamError
-from .scene import SceneError
-from .ros_common import LATCHED_QOS, LATEST_QOS, PUB_QOS, DiagnosticsPublisher, RejectionLog, RateMeter, fail, run_node, split_cli
-from .ros_params import declare_node_params
+from softhand_sim.ros import msgs as rm
+from softhand_sim.params import ParamError
+from softhand_sim.scene import SceneError
+from softhand_sim.ros.common import LATCHED_QOS, LATEST_QOS, PUB_QOS, DiagnosticsPublisher, RejectionLog, RateMeter, fail, run_node, split_cli
+from softhand_sim.ros.params import declare_node_params
 
 NODE_NAME = "sim_node"
 DIAG_WINDOW = 1000  # steps in the /diagnostics step-time and CG statistics
@@ -50,7 +50,7 @@ class SimNode(Node):
     def __init__(self):
         super().__init__(NODE_NAME)
         self.params = declare_node_params(self, NODE_NAME)  # ParamError: run_node reports it, exit 1
-        from .sim_runtime import SimRuntime  # heavy: numba kernels, hand model
+        from softhand_sim.runtime import SimRuntime  # heavy: numba kernels, hand model
 
         log = self.get_logger()
         log.info("building the hand model and solver (cached after the first run)...")

@@ -17,7 +17,7 @@ Output: bone poses (16, 7) [m, quaternion x y z w] in `world`, bone order of
       a = n × x_1 + Σ_i x_i × x_(i+1)        (x_i: unit axes of its three bones)
 
   with n the digit's base abduction axis (fingers: the palm's z; thumb: the hand model's thumb
-  base axis, `DEFAULT_ABDUCTION_AXES`, configurable). For a digit whose base joint abducts
+  base axis, `default_dims().abduction_axes()`, configurable). For a digit whose base joint abducts
   about n and then flexes, and whose two
   distal joints are hinges parallel to the flexed base axis, every term is parallel to that axis
   (the first with weight cos(base flexion), the others with the sine of each joint's bend), so
@@ -48,10 +48,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from softhand_sim.rotations import matrix_to_quat, quat_to_matrix
-from softhand_sim.skeleton_names import (BONE_COUNT, BONE_SEGMENTS, JOINT_INDEX, OPENXR_JOINT_COUNT)
+from softhand_sim.physics.rotations import matrix_to_quat, quat_to_matrix
+from softhand_sim.handmodel.skeleton_names import (BONE_COUNT, BONE_SEGMENTS, JOINT_INDEX, OPENXR_JOINT_COUNT)
 
-from softhand_sim.kinematic_hand import DEFAULT_DIMS, thumb_frame
+from softhand_sim.handmodel.kinematics import default_dims, thumb_frame
 
 REJECT_REASONS = ("joint_count", "non_finite", "out_of_range", "bone_length", "degenerate_palm", "stamp_order")
 # [m] A joint farther than this from the tracker origin is a corrupt frame, not a hand in a room
@@ -72,7 +72,6 @@ _LITTLE_PROXIMAL = JOINT_INDEX["LITTLE_PROXIMAL"]
 # Base abduction axis of each digit (thumb..little) in the right hand's palm frame: the fingers
 # abduct about the palm normal; the thumb CMC about the kinematic hand's thumb base z axis
 # (kinematic_hand.HandDims.thumb_base_rotation).
-DEFAULT_ABDUCTION_AXES = DEFAULT_DIMS.abduction_axes()
 _MIRROR = np.diag([1.0, -1.0, 1.0])
 # Below this length of the summed flexion-axis terms the palm's lateral axis is blended in.
 _FLEX_AXIS_BLEND = 0.2
@@ -104,10 +103,10 @@ def bone_frames(joints: np.ndarray, hand: str = "right", abduction_axes=None) ->
     """Bone poses (16, 7) from validated joint positions (26, 3) [m], same frame as the joints.
 
     abduction_axes (5, 3): each digit's base abduction axis in the right hand's palm frame
-    (default DEFAULT_ABDUCTION_AXES); mirrored here for a left hand. No validation here (see
+    (default: the default hand model's); mirrored here for a left hand. No validation here (see
     `validate_joints`); the frame convention is the module docstring's.
     """
-    n_local = DEFAULT_ABDUCTION_AXES if abduction_axes is None else np.asarray(abduction_axes, dtype=np.float64)
+    n_local = default_dims().abduction_axes() if abduction_axes is None else np.asarray(abduction_axes, dtype=np.float64)
     s = side_sign(hand)
     p = np.asarray(joints, dtype=np.float64)
     axes = p[_SEG_DIST] - p[_SEG_PROX]

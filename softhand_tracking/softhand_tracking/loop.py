@@ -1,7 +1,7 @@
 """High-rate intermediate-bone loop, paper Sect. 3.6 "Layered setup".
 
 16 disconnected rigid bodies (the intermediate bones). Each is coupled by Eq. 14
-(`softhand_sim.energies.rigid_coupling`, the sim's own implementation) to
+(`softhand_sim.physics.energies.rigid_coupling`, the sim's own implementation) to
 
 * its tracked bone (from the tracker adapter): kx = tracked_kx, k_theta = tracked_ktheta, and
 * its copy of the full-simulation bone (/hand/bones), held constant between updates:
@@ -35,9 +35,9 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-from softhand_sim.energies.rigid_coupling import target_energy_gradient
-from softhand_sim.rotations import integrate_rotation, quat_log, quat_mul, quat_conj, quat_to_matrix
-from softhand_sim.skeleton_names import BONE_COUNT
+from softhand_sim.physics.energies.rigid_coupling import target_energy_gradient
+from softhand_sim.physics.rotations import integrate_rotation, quat_log, quat_mul, quat_conj, quat_to_matrix
+from softhand_sim.handmodel.skeleton_names import BONE_COUNT
 
 MAX_REF_SPEED = 5.0      # [m/s] cap on the tracked bones' estimated speed (a glitch is no velocity)
 MAX_REF_RATE = 40.0      # [rad/s] cap on their estimated angular rate
@@ -256,7 +256,7 @@ class TrackingLoop:
 
     def __init__(self, loop_config: LoopConfig | None = None, adapter=None, tracker_timeout: float = 0.1,
                  sim_timeout: float = 0.5, inertia: BoneInertia | None = None):
-        from .adapter import TrackerAdapter
+        from softhand_tracking.adapter import TrackerAdapter
         for name, value in (("tracker_timeout", tracker_timeout), ("sim_timeout", sim_timeout)):
             if not np.isfinite(value) or value <= 0:
                 raise ValueError(f"{name} must be > 0 s, got {value!r}")
@@ -278,7 +278,7 @@ class TrackingLoop:
         return self.bones.tracked
 
     def on_tracker(self, joints, t: float, capture_t: float | None = None) -> bool:
-        from .adapter import RejectedFrame
+        from softhand_tracking.adapter import RejectedFrame
         capture_t = t if capture_t is None or capture_t == 0.0 else capture_t  # stamp 0: unstamped
         # A frame captured no later than the last accepted one (duplicate, reordered) would move the
         # target back in time. After a dropout (holding) any stamp is taken: a restarted tracker

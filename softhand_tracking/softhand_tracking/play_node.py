@@ -29,11 +29,11 @@ from rclpy.serialization import deserialize_message
 from geometry_msgs.msg import PoseArray
 from rosgraph_msgs.msg import Clock
 
-from softhand_sim.ros_common import PUB_QOS, split_cli
-from softhand_sim.ros_msgs import stamp_from_ns, stamp_to_ns
+from softhand_sim.ros.common import PUB_QOS, split_cli
+from softhand_sim.ros.msgs import stamp_from_ns, stamp_to_ns
 from softhand_sim.params import ParamError
-from softhand_sim.ros_params import declare_node_params
-from softhand_sim.bagio import BagError, read_topic
+from softhand_sim.ros.params import declare_node_params
+from softhand_sim.ros.bagio import BagError, read_topic
 
 MSGTYPE = "geometry_msgs/msg/PoseArray"
 _MAX_SLEEP_S = 0.02  # sleep in slices so a shutdown (signal) is noticed quickly

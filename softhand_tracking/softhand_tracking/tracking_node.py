@@ -25,10 +25,10 @@ import numpy as np
 from geometry_msgs.msg import PoseArray
 from rclpy.node import Node
 
-from softhand_sim.ros_common import (LATEST_QOS, PUB_QOS, SENSOR_QOS, DiagnosticsPublisher, RateMeter,
+from softhand_sim.ros.common import (LATEST_QOS, PUB_QOS, SENSOR_QOS, DiagnosticsPublisher, RateMeter,
                                      fail, run_node, split_cli)
-from softhand_sim.ros_msgs import pose_array_from_numpy, pose_array_to_numpy, stamp_to_seconds
-from softhand_sim.ros_params import declare_node_params
+from softhand_sim.ros.msgs import pose_array_from_numpy, pose_array_to_numpy, stamp_to_seconds
+from softhand_sim.ros.params import declare_node_params
 from softhand_tracking.adapter import AdapterConfig, TrackerAdapter
 from softhand_tracking.loop import LoopConfig, TrackingLoop, warm_up
 

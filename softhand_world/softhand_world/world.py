@@ -5,7 +5,7 @@ ground plane, the static objects (fixed) and the dynamic objects of a `softhand_
 with the scene's masses, inertias and friction. For every dynamic object the hand side reports,
 it keeps an `ObjectCopy` (the hand instance's pose, twist and acceleration at its stamp) and, before
 each engine step, applies to the engine instance the Eq. 14 wrench toward the copy extrapolated to
-the current engine time (`softhand_sim.coupling`). Copies older than `copy_timeout` are stale: the
+the current engine time (`softhand_sim.physics.coupling`). Copies older than `copy_timeout` are stale: the
 object is decoupled and left to pybullet alone.
 
 The engine time starts at `start_time` and advances by exactly 1 / engine_rate per step; states
@@ -13,7 +13,7 @@ read after a step are stamped with the new engine time. pybullet gives velocitie
 accelerations, so accelerations are backward finite differences of the velocities over one step.
 
 Gravity acts on the engine instances (and, with the same mass, on the hand instances as well):
-see softhand_sim.coupling's module docstring for why, and for what it costs while holding.
+see softhand_sim.physics.coupling's module docstring for why, and for what it costs while holding.
 No ROS here: world_node.py is the thin node around this class.
 """
 from __future__ import annotations
@@ -25,11 +25,11 @@ import numpy as np
 import pybullet
 from pybullet_utils.bullet_client import BulletClient
 
-from softhand_sim.coupling import (DEFAULT_MAX_OMEGA, PAPER_KTHETA, PAPER_KX, AccelerationEstimator,
+from softhand_sim.physics.coupling import (DEFAULT_MAX_OMEGA, PAPER_KTHETA, PAPER_KX, AccelerationEstimator,
                                    ObjectCopy, explicit_coupling_wrench, implicit_coupling_wrench,
                                    warm_up as coupling_warm_up,
                                    limit_coupling_stiffness)
-from softhand_sim.rotations import quat_to_matrix
+from softhand_sim.physics.rotations import quat_to_matrix
 
 log = logging.getLogger(__name__)
 

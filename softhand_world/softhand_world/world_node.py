@@ -15,12 +15,12 @@ from rclpy.node import Node
 from trajectory_msgs.msg import MultiDOFJointTrajectory
 from visualization_msgs.msg import MarkerArray
 
-from softhand_sim import ros_msgs as rm
-from softhand_sim.ros_common import LATEST_QOS, PUB_QOS, DiagnosticsPublisher, RejectionLog, RateMeter, fail, run_node, split_cli
-from softhand_sim.ros_params import declare_node_params
+from softhand_sim.ros import msgs as rm
+from softhand_sim.ros.common import LATEST_QOS, PUB_QOS, DiagnosticsPublisher, RejectionLog, RateMeter, fail, run_node, split_cli
+from softhand_sim.ros.params import declare_node_params
 from softhand_sim.scene import SceneError, load_scene
 
-from .world import World, WorldConfig
+from softhand_world.world import World, WorldConfig
 
 NODE_NAME = "world_node"
 REJECT_LOG_PERIOD = 2.0   # [s] at most one log line per rejection reason per period

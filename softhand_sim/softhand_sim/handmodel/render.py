@@ -14,7 +14,7 @@ import numpy as np  # noqa: E402
 import trimesh  # noqa: E402
 from matplotlib.collections import PolyCollection  # noqa: E402
 
-from softhand_sim.rotations import quat_to_matrix  # noqa: E402
+from softhand_sim.physics.rotations import quat_to_matrix  # noqa: E402
 
 SKIN_RGB = (0.93, 0.74, 0.62)
 OBJECT_RGB = (0.45, 0.62, 0.85)

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from softhand_sim.rotations import quat_to_matrix
+from softhand_sim.physics.rotations import quat_to_matrix
 
 
 def _segment_distance(points, origin, axis, length):

@@ -12,7 +12,7 @@ but belong to no pair.
 import numpy as np
 
 from softhand_sim.handmodel.embedding import barycentric, embed_points
-from softhand_sim.rotations import quat_to_matrix
+from softhand_sim.physics.rotations import quat_to_matrix
 
 SAMPLE_SPACING = 0.001  # [m] between neighbouring capsule surface samples
 

@@ -12,8 +12,8 @@ the soft tissue mass (1000 kg/m^3) belongs to the tet mesh and is added by the s
 """
 import numpy as np
 
-from softhand_sim.rotations import matrix_to_quat, quat_from_axes, quat_mul, quat_conj, quat_to_matrix
-from softhand_sim.skeleton_names import BONE_COUNT, BONE_PARENT
+from softhand_sim.physics.rotations import matrix_to_quat, quat_from_axes, quat_mul, quat_conj, quat_to_matrix
+from softhand_sim.handmodel.skeleton_names import BONE_COUNT, BONE_PARENT
 
 BONE_DENSITY = 1900.0  # [kg/m^3]
 JOINT_SPHERICAL, JOINT_HINGE, JOINT_UNIVERSAL = 0, 1, 2

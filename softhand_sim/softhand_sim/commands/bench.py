@@ -1,0 +1,194 @@
+"""`softhand bench`: single-thread step timing of the soft-hand solver (compile time excluded).
+
+    python -m softhand_sim.commands.bench [--scenario free|press|grasp] [--mesh coarse|fine|box]
+                                 [--steps N] [--preconditioner factor|block_jacobi|jacobi]
+                                 [--all-preconditioners] [--json]
+
+Meshes: coarse / fine = the parametric hand model (handmodel.load_or_build_hand(resolution=...));
+box = the voxel box hand of bench_scenes (~850 tets, the paper's size; no hand builder needed).
+Scenarios live in SCENARIOS (name -> setup(solver, state) returning a per-step callback
+update(k, t)); `grasp` is the thumb-index pinch of contact_scenarios (PinchScenario).
+contacts_median: active skin contacts per step; collision_ms: median collision-detection time.
+Timings: median and p99 of the whole step (wall clock, one thread: NUMBA_NUM_THREADS=1);
+setup = rotations + assembly (+ the preconditioner's refactorization), solve = PCG + advance.
+"""
+import argparse
+import json
+import os
+import sys
+import time
+
+os.environ.setdefault("NUMBA_NUM_THREADS", "1")
+
+import numpy as np  # noqa: E402
+
+from softhand_sim.scenarios.bench_scenes import fingertip_pad_nodes, flexed_pose  # noqa: E402
+
+PAPER_STEPS_PER_S = 55.0
+MESHES = ("coarse", "fine", "box")
+PRECONDITIONERS = ("factor", "block_jacobi", "jacobi")
+BOX_TETS = 850
+DT = 0.01
+_ASSETS = {}
+
+
+def _asset(mesh):
+    """(asset, source) for a mesh name; cached per process."""
+    if mesh not in _ASSETS:
+        if mesh == "box":
+            from softhand_sim.scenarios.bench_scenes import box_hand_with_tets
+            _ASSETS[mesh] = (box_hand_with_tets(BOX_TETS), "box_hand")
+        elif mesh in ("coarse", "fine"):
+            from softhand_sim.handmodel import load_or_build_hand
+            _ASSETS[mesh] = (load_or_build_hand(resolution=mesh), "hand_model")
+        else:
+            raise ValueError(f"mesh={mesh!r}: expected one of {MESHES}")
+    return _ASSETS[mesh]
+
+
+class _Free:
+    """Open-close cycle of all fingers (1 Hz) through the bone targets, by forward kinematics
+    about each joint's flexion axis up to 70% of its flexion limit (hinge joints) / 40% (the
+    finger bases), while the palm wanders by +-2 cm."""
+
+    def __init__(self):
+        self.asset = None
+
+    def objects(self, asset):  # remembers the asset (joint axes, limits) for the targets
+        self.asset = asset
+        return ()
+
+    def __call__(self, solver, state):
+        a = self.asset
+        lim = np.asarray(a.joint_limits, float)[:, 0, 1]
+        amp = np.where(np.asarray(a.joint_type) == 1, 0.7, 0.4) * np.maximum(lim, 0.0)
+
+        def update(k, t):
+            s = 0.5 * (1.0 - np.cos(2.0 * np.pi * t))
+            off = 0.02 * np.array([np.sin(t), np.cos(1.3 * t) - 1.0, 0.0])
+            solver.set_bone_targets(flexed_pose(a, s * amp, off))
+        return update
+
+
+class _PadLoad:
+    """Dead load [N] spread over the fingertip pad nodes (U = -f . x): the `press` scenario."""
+
+    def __init__(self, pads):
+        self.dofs = np.concatenate([3 * p + 2 for p in pads])
+        self.share = np.concatenate([np.full(len(p), 1.0 / len(p)) for p in pads])
+        self.force = 0.0
+
+    def add_all(self, solver, state, grad, values):
+        grad[self.dofs] -= self.force * self.share
+        return 0.0
+
+
+class _Press:
+    """Open hand held by its targets; 5 N on each fingertip pad pushing up (+z, a surface under
+    the palm-down hand), ramped over 0.2 s."""
+
+    def __init__(self):
+        self.asset = None
+
+    def objects(self, asset):
+        self.asset = asset
+        return ()
+
+    def __call__(self, solver, state):
+        term = _PadLoad(fingertip_pad_nodes(self.asset))
+        solver.terms.append(term)
+
+        def update(k, t):
+            term.force = 5.0 * min(1.0, t / 0.2)
+        return update
+
+
+SCENARIOS = {"free": _Free(), "press": _Press()}
+from softhand_sim.scenarios.contact import PinchScenario  # noqa: E402
+SCENARIOS["grasp"] = PinchScenario()  # thumb-index pinch of the ball, lifted (contact_scenarios.py)
+
+
+def run(scenario, mesh, steps, preconditioner):
+    from softhand_sim.physics.model import build_model
+    from softhand_sim.physics.solver import Solver
+    asset, source = _asset(mesh)
+    objects = getattr(SCENARIOS[scenario], "objects", None)  # scenarios may add rigid objects
+    params = getattr(SCENARIOS[scenario], "params", dict)()   # ... and their own solver parameters
+    model = build_model(asset, {**params, "preconditioner": preconditioner},
+                        objects=objects(asset) if objects else ())
+    t0 = time.perf_counter()
+    warm = Solver(model)  # compile every kernel once on a throwaway state
+    ws = model.initial_state()
+    SCENARIOS[scenario](warm, ws)(0, 0.0)
+    warm.step(ws, DT)
+    compile_s = time.perf_counter() - t0
+    solver = Solver(model)
+    state = model.initial_state()
+    update = SCENARIOS[scenario](solver, state)
+    ms, setup, solve, iters, contacts, coll, caps, refac = [], [], [], [], [], [], 0, 0
+    for k in range(steps):
+        update(k, k * DT)
+        t = time.perf_counter()
+        st = solver.step(state, DT)
+        ms.append((time.perf_counter() - t) * 1e3)
+        setup.append(st.setup_ms)
+        solve.append(st.solve_ms)
+        iters.append(st.cg_iters)
+        contacts.append(st.contacts)
+        coll.append(st.collision_ms)
+        caps += st.hit_cap
+        refac += st.refactored
+    ms = np.array(ms)
+    return {
+        "mesh": mesh, "source": source, "tets": int(len(model.tets)), "dofs": int(model.dof_count),
+        "nnz": int(len(model.indices)), "scenario": scenario, "preconditioner": preconditioner,
+        "steps": steps, "median_ms": float(np.median(ms)), "p99_ms": float(np.percentile(ms, 99)),
+        "max_ms": float(ms.max()), "steps_per_s": float(1e3 / np.median(ms)),
+        "setup_ms": float(np.median(setup)), "solve_ms": float(np.median(solve)),
+        "cg_iters_median": float(np.median(iters)), "cg_iters_max": int(max(iters)),
+        "cg_hit_cap": int(caps), "refactors": int(refac),
+        "contacts_median": float(np.median(contacts)), "collision_ms": float(np.median(coll)),
+        "compile_s": compile_s, "finite": bool(np.all(np.isfinite(state.node_x))),
+        "paper_steps_per_s": PAPER_STEPS_PER_S,
+    }
+
+
+COLUMNS = ["scenario", "mesh", "tets", "dofs", "preconditioner", "median_ms", "p99_ms",
+           "steps_per_s", "setup_ms", "solve_ms", "cg_iters_median", "cg_hit_cap", "refactors",
+           "contacts_median", "collision_ms", "compile_s"]
+
+
+def format_table(rows):
+    lines = [" ".join(f"{c:>15}" for c in COLUMNS)]
+    for r in rows:
+        lines.append(" ".join(f"{r[c]:>15.3f}" if isinstance(r[c], float) else f"{r[c]!s:>15}"
+                              for c in COLUMNS))
+    lines.append(f"paper: {PAPER_STEPS_PER_S} steps/s (856 tets, one i7-5820K core; "
+                 "Fig. 9: setup ~ solve ~ 10 ms)")
+    return "\n".join(lines)
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(prog="softhand bench", description=__doc__.splitlines()[0])
+    ap.add_argument("--scenario", choices=sorted(SCENARIOS), action="append")
+    ap.add_argument("--mesh", choices=MESHES, action="append")
+    ap.add_argument("--preconditioner", choices=PRECONDITIONERS, action="append")
+    ap.add_argument("--all-preconditioners", action="store_true",
+                    help="run every preconditioner (the default factor, block_jacobi, the paper's jacobi)")
+    ap.add_argument("--steps", type=int, default=300)
+    ap.add_argument("--json", action="store_true")
+    a = ap.parse_args(argv)
+    if a.steps < 1:
+        ap.error(f"--steps={a.steps}: must be >= 1")
+    precs = list(PRECONDITIONERS) if a.all_preconditioners else (a.preconditioner or ["factor"])
+    try:
+        rows = [run(s, m, a.steps, p) for m in (a.mesh or ["coarse", "fine"])
+                for s in (a.scenario or ["free", "press"]) for p in precs]
+    except ValueError as e:
+        ap.error(str(e))
+    print(json.dumps(rows, indent=1) if a.json else format_table(rows))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

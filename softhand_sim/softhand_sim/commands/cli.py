@@ -1,0 +1,43 @@
+"""`softhand`: the project's top-level command (demo, bench, hand, params, offline).
+
+Each subcommand lives in its own module and is imported only when used, so `softhand --help`
+is instant and `softhand bench` never loads rclpy.
+"""
+import argparse
+import importlib
+import sys
+
+# name -> (module with main(argv), one-line help)
+SUBCOMMANDS = {
+    "demo": ("softhand_sim.commands.demo", "replay a tracker bag through tracking, sim, world and record nodes; "
+                                  "writes runs/<stamp>/ (bag, summary.json, preview)"),
+    "bench": ("softhand_sim.commands.bench", "solver benchmark (single thread): steps/s median and p99, setup/solve split"),
+    "hand": ("softhand_sim.commands.hand", "build the parametric hand model and render it to a PNG"),
+    "params": ("softhand_sim.commands.params", "print every node parameter with its default, unit and meaning"),
+    "offline": ("softhand_sim.commands.offline", "run the whole pipeline over a bag without ROS, deterministically; "
+                                                 "prints the ball's lift, hold and fall"),
+}
+
+
+def main(argv=None):
+    argv = sys.argv[1:] if argv is None else list(argv)
+    parser = argparse.ArgumentParser(
+        prog="softhand",
+        description="softhand: a physics-based soft hand for teleoperation and VR (ROS 2 Jazzy). "
+                    "Nodes: softhand-tracking, softhand-sim, softhand-world, softhand-play, softhand-record.",
+    )
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    for name, (_, text) in SUBCOMMANDS.items():
+        sub.add_parser(name, help=text, add_help=False)
+    if not argv or argv[0] in ("-h", "--help"):
+        parser.print_help()
+        return 0
+    name = argv[0]
+    if name not in SUBCOMMANDS:
+        parser.error(f"unknown command {name!r}; choose from {', '.join(SUBCOMMANDS)}")
+    module = importlib.import_module(SUBCOMMANDS[name][0])
+    return module.main(argv[1:]) or 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

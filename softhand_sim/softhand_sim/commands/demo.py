@@ -1,0 +1,183 @@
+"""`softhand demo`: the main job. Replays a tracker bag through the whole node set and records it.
+
+Starts world_node, sim_node, tracking_node and record_node as separate processes (loopback-only
+discovery, a ROS domain of their own), waits until they are up, plays the bag with play_node, stops
+everything when the bag ends, then writes runs/<stamp>/:
+    bag/            the recording (rosbag2, mcap storage)
+    summary.json    rates per node, sim step p50/p99, latency, contacts, ball lift
+    preview.png     key frames drawn from the recording (CPU renderer), preview.gif
+    logs/           each node's output
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import signal
+import subprocess
+import sys
+import time
+from datetime import datetime
+from pathlib import Path
+
+from softhand_sim.paths import REPO_ROOT, bags_dir
+from softhand_sim.ros.env import apply_isolated_env, isolated_env
+from softhand_sim.ros.probe import wait_for_topics
+
+DEFAULT_BAG = "grasp_lift"
+# (package, executable) of every process, in start order; the launch file starts the same set
+# (softhand_sim/launch/softhand.launch.py). Console scripts: softhand-<name without _node>.
+NODE_SET = (
+    ("softhand_world", "world_node"),
+    ("softhand_sim", "sim_node"),
+    ("softhand_tracking", "tracking_node"),
+    ("softhand_sim", "record_node"),
+    ("softhand_tracking", "play_node"),
+)
+SIM_NODES = NODE_SET[:3]  # started first; record_node and play_node follow once these are up
+READY_TOPICS = ("/world/object_states", "/hand/bones", "/hand/intermediate_bones")
+
+
+def console_script(name):
+    exe = Path(sys.executable).parent / name
+    if not exe.exists():
+        raise SystemExit(f"error: {exe} not found: install the project (make demo does) first")
+    return str(exe)
+
+
+def resolve_bag(bag):
+    path = Path(bag)
+    if not path.exists() and (bags_dir() / bag).exists():
+        path = bags_dir() / bag
+    if not path.exists():
+        known = sorted(p.name for p in bags_dir().iterdir() if p.is_dir()) if bags_dir().is_dir() else []
+        raise SystemExit(f"error: bag {bag!r} not found (sample bags in {bags_dir()}: {', '.join(known)})")
+    return path.resolve()
+
+
+class ProcessSet:
+    """Child processes with their logs; stopped with SIGINT, then SIGKILL after a grace period."""
+
+    def __init__(self, env, log_dir):
+        self.env = env
+        self.log_dir = Path(log_dir)
+        self.log_dir.mkdir(parents=True, exist_ok=True)
+        self.procs = {}
+
+    def start(self, name, argv):
+        log = open(self.log_dir / f"{name}.log", "w")
+        self.procs[name] = (subprocess.Popen(argv, env=self.env, stdout=log, stderr=subprocess.STDOUT,
+                                             start_new_session=True), log)
+        return self.procs[name][0]
+
+    def alive(self, name):
+        return self.procs[name][0].poll() is None
+
+    def stop(self, name, grace=10.0):
+        proc, log = self.procs[name]
+        if proc.poll() is None:
+            proc.send_signal(signal.SIGINT)
+            try:
+                proc.wait(grace)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait()
+        log.close()
+        return proc.returncode
+
+    def stop_all(self):
+        return {name: self.stop(name) for name in reversed(list(self.procs))}
+
+    def tail(self, name, lines=15):
+        path = self.log_dir / f"{name}.log"
+        return "\n".join(path.read_text(errors="replace").splitlines()[-lines:]) if path.exists() else ""
+
+
+def run_demo(bag, out_dir, rate=1.0, params_file=None, preview=True, startup_timeout=600.0, quiet=False):
+    """Run the node set over `bag`; returns the summary dict (also written to out_dir/summary.json)."""
+    say = (lambda *a: None) if quiet else (lambda *a: print(*a, flush=True))
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    env = isolated_env()
+    apply_isolated_env(env["ROS_DOMAIN_ID"])  # this process watches the same (private) domain
+    env.setdefault("NUMBA_NUM_THREADS", "1")  # two cores, five processes: no thread oversubscription
+    say(f"softhand demo: bag {bag.name} -> {out_dir} (ROS_DOMAIN_ID={env['ROS_DOMAIN_ID']}, discovery LOCALHOST)")
+    procs = ProcessSet(env, out_dir / "logs")
+    ros = ["--ros-args"] + (["--params-file", str(params_file)] if params_file else [])
+    t0 = time.monotonic()
+    try:
+        for _, executable in SIM_NODES:
+            name = executable.removesuffix("_node")
+            procs.start(name, [console_script(f"softhand-{name}"), *ros])
+        say("  starting world, sim and tracking nodes (first start compiles the solver: up to a few minutes)...")
+        missing = wait_for_topics(READY_TOPICS, startup_timeout, procs)
+        if missing:
+            raise SystemExit(f"error: no publisher on {missing} after {startup_timeout:.0f} s; see {out_dir / 'logs'}")
+        procs.start("record", [console_script("softhand-record"), *ros, "-p", f"output:={out_dir / 'bag'}"])
+        time.sleep(2.0)  # let the recorder discover every publisher before the first tracker frame
+        say(f"  nodes up after {time.monotonic() - t0:.1f} s; playing {bag.name} at rate {rate}")
+        play = procs.start("play", [console_script("softhand-play"), str(bag), "--rate", str(rate), "--wait-subscribers", "1", *ros])
+        play.wait()
+        if play.returncode != 0:
+            raise SystemExit(f"error: play_node failed:\n{procs.tail('play')}")
+        time.sleep(1.0)  # the last frames travel through tracking -> sim -> world -> record
+    finally:
+        codes = procs.stop_all()
+    say(f"  stopped: {codes}")
+    from softhand_sim.commands.run_summary import summarize_run
+
+    summary = summarize_run(out_dir / "bag", bag_name=bag.name, exit_codes=codes)
+    (out_dir / "summary.json").write_text(json.dumps(summary, indent=2))
+    if preview:
+        from softhand_sim.commands.preview import render_preview
+
+        summary["preview"] = render_preview(out_dir / "bag", out_dir)
+        (out_dir / "summary.json").write_text(json.dumps(summary, indent=2))
+    say(format_summary(summary, out_dir))
+    silent = [t for t in READY_TOPICS if not summary.get("messages_per_topic", {}).get(t)]
+    if silent:
+        raise SystemExit(f"error: nothing was recorded on {silent}; see the node logs in {out_dir / 'logs'}")
+    return summary
+
+
+def format_summary(s, out_dir):
+    r = s.get("rates_hz", {})
+    lines = [
+        f"run {out_dir}",
+        "  rates [Hz]: " + ", ".join(f"{k} {v:.1f}" for k, v in r.items()),
+        f"  sim step: p50 {s.get('sim_step_ms_p50', float('nan')):.2f} ms, p99 {s.get('sim_step_ms_p99', float('nan')):.2f} ms",
+        f"  tracker -> /hand/bones latency: p50 {s.get('latency_ms_p50', float('nan')):.1f} ms, "
+        f"p99 {s.get('latency_ms_p99', float('nan')):.1f} ms (first /hand/bones "
+        f"{s.get('startup_s', float('nan')):.2f} s after the first tracker frame)",
+        f"  max active contacts: {s.get('max_contacts', 0)}",
+        f"  ball: lifted {100 * s.get('ball_lift_m', 0.0):.1f} cm (lifted >= 8 cm: {s.get('ball_lifted', False)})",
+        f"  recording: {s.get('bag_messages', 0)} messages, {s.get('bag_mb', 0.0):.1f} MB, all values finite: "
+        f"{s.get('all_finite', False)}",
+    ]
+    if s.get("preview"):
+        lines.append(f"  preview: {', '.join(str(p) for p in s['preview'])}")
+    return "\n".join(lines)
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(
+        prog="softhand demo",
+        description="Replay a tracker bag through tracking, sim and world nodes, record everything to "
+                    "runs/<stamp>/ (rosbag2 mcap), and write summary.json and a rendered preview.",
+    )
+    parser.add_argument("--bag", default=DEFAULT_BAG,
+                        help=f"tracker bag directory or a sample name in bags/ (default {DEFAULT_BAG})")
+    parser.add_argument("--out", default=None, help="run directory (default runs/<stamp>)")
+    parser.add_argument("--rate", type=float, default=1.0, help="playback speed factor (default 1)")
+    parser.add_argument("--params-file", default=None, help="ROS 2 params file for the nodes")
+    parser.add_argument("--no-preview", action="store_true", help="skip rendering the preview")
+    args = parser.parse_args(argv)
+    if args.rate <= 0:
+        parser.error(f"--rate must be > 0, got {args.rate}")
+    bag = resolve_bag(args.bag)
+    out = Path(args.out) if args.out else REPO_ROOT / "runs" / datetime.now().strftime("%Y%m%d-%H%M%S")
+    run_demo(bag, out, rate=args.rate, params_file=args.params_file, preview=not args.no_preview)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

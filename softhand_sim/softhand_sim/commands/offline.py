@@ -1,0 +1,272 @@
+"""The whole softhand pipeline without ROS, deterministic: bag -> adapter -> loop <-> sim <-> world.
+
+    from softhand_sim.commands.offline import run_pipeline   # or: softhand offline BAG
+    result = run_pipeline("grasp_short")            # a bag name / directory, or synth=True
+    result.summary()                                # lift, hold, fall, contacts, forces
+
+What runs (the same classes the nodes wrap, with the nodes' default parameters from
+config/softhand.yaml, `softhand_sim.params.load_params`):
+
+* tracker frames: the bag's PoseArray messages (softhand_sim.ros.bagio) or `tracker_bags.sample(name)`,
+  delivered at their capture (header) time, as play_node replays them;
+* tracking_node: `TrackingLoop` stepped at its `rate` (250 Hz); each step's intermediate bones
+  become the sim's bone targets at once (sim_node keeps the latest);
+* sim_node: `SimRuntime.step(dt, t)` at `sim_rate` (60 Hz). Its outputs (state at t + dt) are
+  delivered `sim_latency` [s] after the step starts (default: one sim period, the worst case of a
+  node whose step takes its whole period): /hand/bones -> loop.on_sim_bones, /hand/object_states
+  -> world.set_copy stamped with the state time t + dt (as world_node takes the header stamp);
+* world_node: `World.step()` at `engine_rate` (120 Hz), its states stamped with the engine time
+  and handed to runtime.set_object_copies with that stamp (sim_node stamps them on receipt,
+  which on an idle machine is the same time).
+
+Events are processed in time order (ties: tracker frame, loop step, world step, sim output, sim
+step), so a run is a pure function of its inputs. Records, per sim step: engine and hand-side
+ball pose, the ball in the palm frame, contacts with the ball and their total force, the lowest
+skin point near a point of interest, the tracked palm.
+"""
+from __future__ import annotations
+
+import argparse
+import heapq
+import json
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from softhand_sim.params import load_params, safe_load
+from softhand_sim.paths import bags_dir
+from softhand_sim.physics.rotations import quat_to_matrix
+from softhand_sim.scene import load_scene
+from softhand_sim.runtime import SimRuntime
+from softhand_tracking.adapter import AdapterConfig, TrackerAdapter
+from softhand_tracking.loop import LoopConfig, TrackingLoop
+from softhand_world.world import World, WorldConfig
+
+TOPIC = "/tracker/hand_joints"
+MSGTYPE = "geometry_msgs/msg/PoseArray"
+_FRAME, _LOOP, _WORLD, _SIM_OUT, _SIM = range(5)  # tie-break order of simultaneous events
+
+
+def read_frames(bag=None, synth=None):
+    """(times [s] from the first frame, joints (n, 26, 7)) of a bag (name in bags/ or directory)
+    or, with synth=<scenario name>, of tracker_bags.sample directly (no file)."""
+    if synth is not None:
+        from softhand_sim.scenarios.tracker_bags import sample
+        stamps, joints, _ = sample(synth)
+    else:
+        from softhand_sim.ros.bagio import deserialize, read_topic
+        path = Path(bag)
+        if not path.exists():
+            path = bags_dir() / str(bag)
+        data = read_topic(path, TOPIC, MSGTYPE)
+        joints = []
+        for raw in data.payloads:
+            msg = deserialize(raw, MSGTYPE)
+            joints.append([(p.position.x, p.position.y, p.position.z, p.orientation.x, p.orientation.y,
+                            p.orientation.z, p.orientation.w) for p in msg.poses])
+        stamps, joints = np.asarray(data.stamps_ns, dtype=np.int64), np.asarray(joints, dtype=float)
+    return (stamps - stamps[0]) * 1e-9, joints
+
+
+@dataclass
+class PipelineResult:
+    """Per sim step records (arrays of equal length) and run counters."""
+
+    t: np.ndarray                # [s] state time of each sim step
+    ball_engine: np.ndarray      # (n, 3) engine ball position [m] (latest world state at t)
+    ball_hand: np.ndarray        # (n, 3) hand-side ball position [m]
+    ball_in_palm: np.ndarray     # (n, 3) engine ball in the simulated palm frame [m]
+    palm: np.ndarray             # (n, 3) simulated palm origin [m]
+    tracked_palm: np.ndarray     # (n, 3) tracked palm origin [m] (adapter output)
+    ball_contacts: np.ndarray    # (n,) active contacts with the ball
+    ball_force: np.ndarray       # (n,) |sum of contact forces on the ball| [N]
+    ball_force_normal: np.ndarray  # (n,) sum of |normal forces| on the ball [N]
+    other_contacts: np.ndarray   # (n,) active contacts with anything else
+    other_force: np.ndarray      # (n,) sum of |contact forces| on everything but the ball [N]
+    max_point_force: np.ndarray  # (n,) largest single contact force [N]
+    skin_min_z: np.ndarray       # (n,) lowest skin vertex [m]
+    rejected_steps: int = 0
+    cg_iters: np.ndarray = field(default=None)
+    ball_z0: float = 0.0
+
+    def held_mask(self, min_contacts=3):
+        return self.ball_contacts >= min_contacts
+
+    def summary(self, hold_window=None):
+        """Lift, hold and fall figures of the engine ball (see the module docstring). The hold
+        figures cover the steps with >= 3 ball contacts and over half the top lift, within
+        `hold_window` (t0, t1) [s] when given (e.g. the bag's hold phase, so the release is out)."""
+        z = self.ball_engine[:, 2]
+        lift = z - self.ball_z0
+        i_top = int(np.argmax(lift))
+        held = self.held_mask()
+        out = {"duration_s": float(self.t[-1]), "ball_lift_max_m": float(lift.max()),
+               "t_ball_top_s": float(self.t[i_top]), "ball_z_end_m": float(z[-1]),
+               "ball_contact_steps": int((self.ball_contacts > 0).sum()),
+               "ball_contacts_max": int(self.ball_contacts.max()),
+               "ball_force_max_N": float(self.ball_force.max()),
+               "ball_force_normal_max_N": float(self.ball_force_normal.max()),
+               "max_point_force_N": float(self.max_point_force.max()),
+               "other_force_max_N": float(self.other_force.max()),
+               "skin_min_z_m": float(self.skin_min_z.min()),
+               "rejected_steps": self.rejected_steps}
+        hold = held & (lift > 0.5 * lift.max()) if lift.max() > 0.02 else np.zeros_like(held)
+        if hold_window is not None:
+            hold &= (self.t >= hold_window[0]) & (self.t <= hold_window[1])
+        if hold.any():
+            rel = self.ball_in_palm[hold]
+            out.update(hold_s=float(hold.sum() * np.median(np.diff(self.t))),
+                       hold_slip_mm=float(1e3 * np.linalg.norm(rel - np.median(rel, axis=0), axis=1).max()),
+                       hold_drift_mm=float(1e3 * np.linalg.norm(rel[-1] - rel[0])))
+        return out
+
+
+def run_pipeline(bag=None, synth=None, until=None, sim_latency=None, sim_overrides=None,
+                 world_overrides=None, tracking_overrides=None, params_file=None, progress=None):
+    """Run the pipeline over a bag (or synth scenario) until `until` [s] (default: end + 2 s)."""
+    times, joints = read_frames(bag, synth)
+    sp = load_params("sim_node", params_file, sim_overrides)
+    wp = load_params("world_node", params_file, world_overrides)
+    tp = load_params("tracking_node", params_file, tracking_overrides)
+    scene = load_scene(sp["scene_file"] or None)
+    runtime = SimRuntime(sp, scene=scene)
+    world = World(load_scene(wp["scene_file"] or None), WorldConfig(
+        engine_rate=wp["engine_rate"], coupling_kx=wp["coupling_kx"], coupling_ktheta=wp["coupling_ktheta"],
+        copy_timeout=wp["copy_timeout"], extrapolate=wp["extrapolate"], coupling_damping=wp["coupling_damping"],
+        coupling_mode=wp["coupling_mode"], coupling_max_omega=wp["coupling_max_omega"], gravity=wp["gravity"]),
+        start_time=0.0)
+    adapter = TrackerAdapter(AdapterConfig(hand=tp["hand"], world_from_tracker=np.asarray(tp["tracker_to_world"], float),
+                                           bone_length_min=tp["min_bone_length"], bone_length_max=tp["max_bone_length"]))
+    loop = TrackingLoop(LoopConfig(rate=tp["rate"], tracked_kx=tp["tracked_kx"], tracked_ktheta=tp["tracked_ktheta"],
+                                   sim_kx=tp["sim_kx"], sim_ktheta=tp["sim_ktheta"], damping_ratio=tp["damping_ratio"]),
+                        adapter, tracker_timeout=tp["tracker_timeout"], sim_timeout=tp["sim_timeout"])
+    sim_dt = 1.0 / sp["sim_rate"]
+    latency = sim_dt if sim_latency is None else float(sim_latency)
+    end = times[-1] + 2.0 if until is None else float(until)
+    ball = runtime.object_names.index("ball")                   # solver body index
+    ball_contact = list(runtime.contacts.model.object_names).index("ball")  # contact object index
+    wball = world.object_index("ball")
+
+    events = []
+    seq = 0
+
+    def push(t, kind, payload=None):
+        nonlocal seq
+        heapq.heappush(events, (t, kind, seq, payload))
+        seq += 1
+
+    for i, t in enumerate(times):
+        push(float(t), _FRAME, i)
+    push(0.0, _LOOP, 0)
+    push(world.dt, _WORLD, 1)
+    push(0.0, _SIM, 0)
+    rec = {k: [] for k in ("t", "be", "bh", "bp", "palm", "tp", "bc", "bf", "bfn", "oc", "of", "mpf", "skz", "cg")}
+    world_state = world.states()
+    while events:
+        t, kind, _, payload = heapq.heappop(events)
+        if t > end + 1e-9:
+            break
+        if kind == _FRAME:
+            loop.on_tracker(joints[payload], t, t)
+        elif kind == _LOOP:
+            poses = loop.step(t)
+            if poses is not None:
+                runtime.set_bone_targets(poses, t)
+            push((payload + 1) / tp["rate"], _LOOP, payload + 1)
+        elif kind == _WORLD:
+            world.step()
+            world_state = world.states()
+            runtime.set_object_copies(list(world_state.names), world_state.pose, world_state.twist,
+                                      world_state.accel, world_state.stamp)
+            push((payload + 1) * world.dt, _WORLD, payload + 1)
+        elif kind == _SIM_OUT:
+            out_t, bones, names, poses, twists, accels = payload
+            loop.on_sim_bones(bones, t)
+            for j, name in enumerate(names):
+                world.set_copy(name, poses[j], twists[j], accels[j], out_t)
+        elif kind == _SIM:
+            out = runtime.step(sim_dt, t)
+            push((payload + 1) * sim_dt, _SIM, payload + 1)
+            if out is None:
+                continue
+            push(t + latency, _SIM_OUT, (out.t, out.bone_poses.copy(), list(out.object_names),
+                                         out.object_poses.copy(), out.object_twists.copy(),
+                                         out.object_accels.copy()))
+            c = out.contacts
+            on_ball = c["objects"] == ball_contact
+            palm = out.bone_poses[0]
+            be = world_state.pose[wball, :3]
+            rec["t"].append(out.t)
+            rec["be"].append(be.copy())
+            rec["bh"].append(out.object_poses[ball, :3].copy())
+            rec["bp"].append(quat_to_matrix(palm[3:].copy()).T @ (be - palm[:3]))
+            rec["palm"].append(palm[:3].copy())
+            rec["tp"].append(loop.tracked[0, :3].copy())
+            rec["bc"].append(int(on_ball.sum()))
+            rec["bf"].append(float(np.linalg.norm(c["forces"][on_ball].sum(axis=0))) if on_ball.any() else 0.0)
+            rec["bfn"].append(float(np.linalg.norm(c["force_normal"][on_ball], axis=1).sum()))
+            rec["oc"].append(int((~on_ball).sum()))
+            rec["of"].append(float(np.linalg.norm(c["forces"][~on_ball], axis=1).sum()))
+            rec["mpf"].append(float(np.linalg.norm(c["forces"], axis=1).max()) if len(c["forces"]) else 0.0)
+            rec["skz"].append(float(out.skin_vertices[:, 2].min()))
+            rec["cg"].append(out.stats.cg_iters)
+            if progress is not None:
+                progress(out)
+    world.close()
+    a = {k: np.asarray(v) for k, v in rec.items()}
+    return PipelineResult(t=a["t"], ball_engine=a["be"], ball_hand=a["bh"], ball_in_palm=a["bp"], palm=a["palm"],
+                          tracked_palm=a["tp"], ball_contacts=a["bc"], ball_force=a["bf"], ball_force_normal=a["bfn"],
+                          other_contacts=a["oc"], other_force=a["of"], max_point_force=a["mpf"], skin_min_z=a["skz"],
+                          rejected_steps=runtime.rejected_steps, cg_iters=a["cg"],
+                          ball_z0=float(scene.objects[[o.name for o in scene.objects].index("ball")].pose[2]))
+
+
+def _overrides(items):
+    out = {}
+    for item in items or ():
+        key, _, value = item.partition("=")
+        if not _:
+            raise SystemExit(f"error: override {item!r} is not key=value")
+        out[key] = safe_load(value)
+    return out
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(prog="softhand offline", description="Run the whole pipeline offline (no ROS, deterministic) over a bag and print the ball's lift, hold and fall.")
+    ap.add_argument("bag", help="bag name in bags/ or a bag directory (scenario name with --synth)")
+    ap.add_argument("--synth", action="store_true", help="sample tracker_bags directly (no bag file)")
+    ap.add_argument("--until", type=float, default=None, help="stop at this time [s] (default: end + 2 s)")
+    ap.add_argument("--every", type=float, default=0.25, help="print a line every this many seconds")
+    ap.add_argument("--latency", type=float, default=None, help="sim output latency [s] (default: 1/sim_rate)")
+    ap.add_argument("--sim", nargs="*", help="sim_node parameter overrides key=value")
+    ap.add_argument("--world", nargs="*", help="world_node parameter overrides key=value")
+    ap.add_argument("--tracking", nargs="*", help="tracking_node parameter overrides key=value")
+    ap.add_argument("--json", help="write the summary here")
+    args = ap.parse_args(argv)
+    t0 = time.monotonic()
+    r = run_pipeline(None if args.synth else args.bag, synth=args.bag if args.synth else None, until=args.until,
+                     sim_latency=args.latency, sim_overrides=_overrides(args.sim),
+                     world_overrides=_overrides(args.world), tracking_overrides=_overrides(args.tracking))
+    print(" t[s]  ball_z[mm] lift  hand_z  palm_z track_z  in_palm(x,y,z)[mm]   nC  F[N]  Fn[N] other skin_min_z")
+    next_print = 0.0
+    for i, t in enumerate(r.t):
+        if t + 1e-9 >= next_print:
+            next_print += args.every
+            bp = 1e3 * r.ball_in_palm[i]
+            print(f"{t:5.2f} {1e3 * r.ball_engine[i, 2]:7.1f} {1e3 * (r.ball_engine[i, 2] - r.ball_z0):6.1f} "
+                  f"{1e3 * r.ball_hand[i, 2]:7.1f} {1e3 * r.palm[i, 2]:7.1f} {1e3 * r.tracked_palm[i, 2]:7.1f} "
+                  f"({bp[0]:6.1f},{bp[1]:6.1f},{bp[2]:6.1f}) {r.ball_contacts[i]:4d} {r.ball_force[i]:5.2f} "
+                  f"{r.ball_force_normal[i]:6.2f} {r.other_contacts[i]:4d} {1e3 * r.skin_min_z[i]:7.1f}")
+    s = r.summary()
+    s["wall_s"] = round(time.monotonic() - t0, 1)
+    print(json.dumps(s, indent=1))
+    if args.json:
+        Path(args.json).write_text(json.dumps(s, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,353 @@
+"""Soft tissue: co-rotational linear FEM with the paper's nonlinear extension (Sect. 3.3, Eq. 7-10).
+
+Per tet e with rest nodes X (4,3), current nodes x, rotation R_e (polar part of F = Ds Dm^-1):
+    u = R^T x - X  (12,),   E_lin = 1/2 u^T K0 u  [J],   K0 = V B^T C B  (computed once, Eq. 7)
+    W = E_lin / V  [J/m^3]; if W > Wmax:  E += V * 1/2 k (W/Wmax - 1)^2               (Eq. 8)
+Gradient: g = s * R K0 u,  s = 1 + k/Wmax (W/Wmax - 1) (s = 1 below Wmax)            (Eq. 9)
+Hessian:  s * R K0 R^T + k/(Wmax^2 V) (R K0 u)(R K0 u)^T                             (Eq. 10)
+The R K0 R^T block drops dR/dx (the standard co-rotational stiffness): symmetric PSD, exact at
+R = const, off by O(strain) otherwise. The gradient is exact when R is the exact polar rotation
+(R^T F symmetric), including inverted tets where R flips the smallest singular direction.
+
+Units: youngs [Pa], poisson [-], Wmax and k [J/m^3], positions [m].
+Rotations are kept per tet as quaternions tet_q (T,4) [x,y,z,w], warm-started each step
+(`update_rotations`, Mueller et al. 2016), so the decomposition costs a few flops per tet.
+"""
+import numpy as np
+from numba import njit
+
+from softhand_sim.physics.rotations import polar_rotation_update, quat_matrix_entries, quat_to_matrix
+
+
+def rest_data(tet_nodes, tets, youngs, poisson):
+    """Per-tet rest volume (T,) [m^3], Dm^-1 (T,3,3) [1/m] and K0 (T,12,12) [N/m]. Numpy, once."""
+    X = tet_nodes[tets]  # (T,4,3)
+    Dm = np.stack([X[:, 1] - X[:, 0], X[:, 2] - X[:, 0], X[:, 3] - X[:, 0]], axis=2)  # columns
+    det = np.linalg.det(Dm)
+    if np.any(det <= 0.0):
+        bad = np.flatnonzero(det <= 0.0)[:5]
+        raise ValueError(f"tets must have positive rest volume; tets {bad.tolist()} do not")
+    vol = det / 6.0
+    Dm_inv = np.linalg.inv(Dm)
+    grads = np.zeros((len(tets), 4, 3))
+    grads[:, 1:] = Dm_inv  # row a-1 of Dm^-1 is grad N_a
+    grads[:, 0] = -Dm_inv.sum(axis=1)
+    lam = youngs * poisson / ((1.0 + poisson) * (1.0 - 2.0 * poisson))
+    mu = youngs / (2.0 * (1.0 + poisson))
+    C = np.zeros((6, 6))
+    C[:3, :3] = lam
+    C[[0, 1, 2], [0, 1, 2]] += 2.0 * mu
+    C[[3, 4, 5], [3, 4, 5]] = mu
+    B = np.zeros((len(tets), 6, 12))
+    for a in range(4):
+        g = grads[:, a]
+        c = 3 * a
+        B[:, 0, c] = g[:, 0]
+        B[:, 1, c + 1] = g[:, 1]
+        B[:, 2, c + 2] = g[:, 2]
+        B[:, 3, c], B[:, 3, c + 1] = g[:, 1], g[:, 0]
+        B[:, 4, c + 1], B[:, 4, c + 2] = g[:, 2], g[:, 1]
+        B[:, 5, c], B[:, 5, c + 2] = g[:, 2], g[:, 0]
+    K0 = vol[:, None, None] * np.einsum("tki,kl,tlj->tij", B, C, B)
+    return vol, Dm_inv, np.ascontiguousarray(K0)
+
+
+@njit(cache=True)
+def update_rotations(x, tets, Dm_inv, tet_q, iterations):
+    """Refresh the per-tet rotation tet_q (T,4) in place from the current positions x (N,3)."""
+    F = np.empty((3, 3))
+    for e in range(tets.shape[0]):
+        i0 = tets[e, 0]
+        for c in range(3):
+            ic = tets[e, c + 1]
+            for r in range(3):
+                F[r, c] = x[ic, r] - x[i0, r]
+        tet_q[e] = polar_rotation_update(F @ Dm_inv[e], tet_q[e], iterations)
+
+
+@njit(cache=True)
+def _local(e, x, X, tets, K0, vol, tet_q, nl_k, nl_wmax, g, H, want_hess, u, Ku):
+    """Energy [J] of tet e; writes its gradient g (12,) and (if want_hess) Hessian H (12,12).
+    u, Ku: (12,) scratch."""
+    R = quat_to_matrix(tet_q[e])
+    for a in range(4):
+        n = tets[e, a]
+        for i in range(3):
+            u[3 * a + i] = R[0, i] * x[n, 0] + R[1, i] * x[n, 1] + R[2, i] * x[n, 2] - X[n, i]
+    energy = 0.0
+    for p in range(12):
+        acc = 0.0
+        for q in range(12):
+            acc += K0[e, p, q] * u[q]
+        Ku[p] = acc
+        energy += 0.5 * u[p] * acc
+    for a in range(4):
+        for i in range(3):
+            g[3 * a + i] = R[i, 0] * Ku[3 * a] + R[i, 1] * Ku[3 * a + 1] + R[i, 2] * Ku[3 * a + 2]
+    scale = 1.0
+    V = vol[e]
+    W = energy / V
+    over = nl_k > 0.0 and W > nl_wmax
+    if over:
+        r = W / nl_wmax - 1.0
+        energy += V * 0.5 * nl_k * r * r
+        scale = 1.0 + nl_k / nl_wmax * r
+    if want_hess:
+        # H_ab = s R K0_ab R^T, written out: no temporaries per block
+        for a in range(4):
+            for b in range(4):
+                for i in range(3):
+                    t0 = 0.0
+                    t1 = 0.0
+                    t2 = 0.0
+                    for k in range(3):
+                        rik = R[i, k]
+                        t0 += rik * K0[e, 3 * a + k, 3 * b]
+                        t1 += rik * K0[e, 3 * a + k, 3 * b + 1]
+                        t2 += rik * K0[e, 3 * a + k, 3 * b + 2]
+                    for j in range(3):
+                        H[3 * a + i, 3 * b + j] = scale * (t0 * R[j, 0] + t1 * R[j, 1] + t2 * R[j, 2])
+        if over:
+            c = nl_k / (nl_wmax * nl_wmax * V)
+            for p in range(12):
+                for q in range(12):
+                    H[p, q] += c * g[p] * g[q]
+    if over:
+        for p in range(12):
+            g[p] *= scale
+    return energy
+
+
+@njit(cache=True)
+def value(x, X, tets, K0, vol, tet_q, nl_k, nl_wmax):
+    """Tissue energy U_t [J] (Eq. 7-8) for rotations tet_q."""
+    g = np.empty(12)
+    H = np.empty((12, 12))
+    u = np.empty(12)
+    Ku = np.empty(12)
+    e_sum = 0.0
+    for e in range(tets.shape[0]):
+        e_sum += _local(e, x, X, tets, K0, vol, tet_q, nl_k, nl_wmax, g, H, False, u, Ku)
+    return e_sum
+
+
+@njit(cache=True)
+def add_gradient(x, X, tets, K0, vol, tet_q, nl_k, nl_wmax, grad):
+    """Adds dU_t/dx (Eq. 9) into grad (flat, node n at 3n..3n+2)."""
+    g = np.empty(12)
+    H = np.empty((12, 12))
+    u = np.empty(12)
+    Ku = np.empty(12)
+    for e in range(tets.shape[0]):
+        _local(e, x, X, tets, K0, vol, tet_q, nl_k, nl_wmax, g, H, False, u, Ku)
+        for a in range(4):
+            for i in range(3):
+                grad[3 * tets[e, a] + i] += g[3 * a + i]
+
+
+@njit(cache=True)
+def add_all(x, X, tets, K0, vol, tet_q, nl_k, nl_wmax, grad, slots, values):
+    """Energy [J]; adds gradient (Eq. 9) into grad and Hessian (Eq. 10) into CSR values through
+    slots (T,12,12) (local entry -> value index)."""
+    g = np.empty(12)
+    H = np.empty((12, 12))
+    u = np.empty(12)
+    Ku = np.empty(12)
+    e_sum = 0.0
+    for e in range(tets.shape[0]):
+        e_sum += _local(e, x, X, tets, K0, vol, tet_q, nl_k, nl_wmax, g, H, True, u, Ku)
+        for a in range(4):
+            for i in range(3):
+                grad[3 * tets[e, a] + i] += g[3 * a + i]
+        for p in range(12):
+            for q in range(12):
+                values[slots[e, p, q]] += H[p, q]
+    return e_sum
+
+
+@njit(cache=True)
+def add_hessian(x, X, tets, K0, vol, tet_q, nl_k, nl_wmax, slots, values):
+    """Adds the Hessian (Eq. 10) into CSR values through slots (T,12,12)."""
+    g = np.empty(12)
+    H = np.empty((12, 12))
+    u = np.empty(12)
+    Ku = np.empty(12)
+    for e in range(tets.shape[0]):
+        _local(e, x, X, tets, K0, vol, tet_q, nl_k, nl_wmax, g, H, True, u, Ku)
+        for p in range(12):
+            for q in range(12):
+                values[slots[e, p, q]] += H[p, q]
+
+
+# ---------------------------------------------------------------- fast path used by the solver
+# The solver's per-step kernel fuses the rotation update with the assembly and uses the closed form
+# of K0 for a linear tet of an isotropic material (no K0 read, ~1/4 of the flops):
+#   K0_ab = V (lam g_a g_b^T + mu g_b g_a^T + mu (g_a . g_b) I),  g_a = grad N_a (rows of Dm^-1)
+# so K0 u = V sigma g_a per node (sigma = lam tr(eps) I + 2 mu eps, eps = sym(R^T F) - I) and
+#   R K0_ab R^T = V (lam h_a h_b^T + mu h_b h_a^T + mu (g_a . g_b) I),  h_a = R g_a.
+# Same energy, gradient and Hessian as `add_all` up to round-off (tests/physics/test_fast_paths.py).
+
+def lame(youngs, poisson):
+    """(lambda, mu) [Pa] of an isotropic material (the C of rest_data)."""
+    lam = youngs * poisson / ((1.0 + poisson) * (1.0 - 2.0 * poisson))
+    return lam, youngs / (2.0 * (1.0 + poisson))
+
+
+def is_isotropic_K0(K0, Dm_inv, vol, lam, mu, rtol=1e-9):
+    """True when every K0 (T,12,12) is the isotropic linear-tet stiffness with (lam, mu): the
+    condition for `add_all_fused` to reproduce `add_all`."""
+    T = len(K0)
+    if T == 0:
+        return True
+    g = np.zeros((T, 4, 3))
+    g[:, 1:] = Dm_inv
+    g[:, 0] = -Dm_inv.sum(axis=1)
+    gg = np.einsum("tai,tbi->tab", g, g)
+    K = (lam * np.einsum("tai,tbj->taibj", g, g) + mu * np.einsum("taj,tbi->taibj", g, g)
+         + mu * gg[:, :, None, :, None] * np.eye(3)[None, None, :, None, :])
+    K = vol[:, None, None] * K.reshape(T, 12, 12)
+    return bool(np.abs(K - K0).max() <= rtol * np.abs(K0).max())
+
+
+@njit(cache=True)
+def _polar_update(F, qx, qy, qz, qw, iterations):
+    """polar_rotation_update (rotations.py, Mueller et al. 2016) on scalars, no allocation; the
+    exponential map uses its Taylor series below 0.1 rad (truncation < 1e-19, i.e. round-off)."""
+    for _ in range(iterations):
+        r00, r01, r02, r10, r11, r12, r20, r21, r22 = quat_matrix_entries(qx, qy, qz, qw)
+        wx = (r10 * F[2, 0] - r20 * F[1, 0]) + (r11 * F[2, 1] - r21 * F[1, 1]) + (r12 * F[2, 2] - r22 * F[1, 2])
+        wy = (r20 * F[0, 0] - r00 * F[2, 0]) + (r21 * F[0, 1] - r01 * F[2, 1]) + (r22 * F[0, 2] - r02 * F[2, 2])
+        wz = (r00 * F[1, 0] - r10 * F[0, 0]) + (r01 * F[1, 1] - r11 * F[0, 1]) + (r02 * F[1, 2] - r12 * F[0, 2])
+        den = (r00 * F[0, 0] + r10 * F[1, 0] + r20 * F[2, 0]) + (r01 * F[0, 1] + r11 * F[1, 1] + r21 * F[2, 1]) \
+            + (r02 * F[0, 2] + r12 * F[1, 2] + r22 * F[2, 2])
+        s = 1.0 / (abs(den) + 1e-9)
+        wx *= s
+        wy *= s
+        wz *= s
+        a2 = wx * wx + wy * wy + wz * wz
+        if a2 < 1e-24:  # angle < 1e-12
+            break
+        if a2 < 1e-16:  # rotations.quat_exp below its _SMALL_ANGLE: (w/2, 1) normalized
+            ex, ey, ez, ew = 0.5 * wx, 0.5 * wy, 0.5 * wz, 1.0
+            n = np.sqrt(ex * ex + ey * ey + ez * ez + 1.0)
+            ex, ey, ez, ew = ex / n, ey / n, ez / n, ew / n
+        elif a2 < 1e-2:
+            h2 = 0.25 * a2  # (angle / 2)^2
+            ew = 1.0 - h2 / 2.0 * (1.0 - h2 / 12.0 * (1.0 - h2 / 30.0 * (1.0 - h2 / 56.0)))
+            sh = 0.5 * (1.0 - h2 / 6.0 * (1.0 - h2 / 20.0 * (1.0 - h2 / 42.0 * (1.0 - h2 / 72.0))))
+            ex, ey, ez = sh * wx, sh * wy, sh * wz
+        else:
+            angle = np.sqrt(a2)
+            sh = np.sin(0.5 * angle) / angle
+            ex, ey, ez, ew = sh * wx, sh * wy, sh * wz, np.cos(0.5 * angle)
+        # q <- normalize(e * q)
+        nx = ew * qx + ex * qw + ey * qz - ez * qy
+        ny = ew * qy - ex * qz + ey * qw + ez * qx
+        nz = ew * qz + ex * qy - ey * qx + ez * qw
+        nw = ew * qw - ex * qx - ey * qy - ez * qz
+        n = np.sqrt(nx * nx + ny * ny + nz * nz + nw * nw)
+        if n == 0.0:
+            qx, qy, qz, qw = 0.0, 0.0, 0.0, 1.0
+        else:
+            qx, qy, qz, qw = nx / n, ny / n, nz / n, nw / n
+    return qx, qy, qz, qw
+
+
+@njit(cache=True)
+def add_all_fused(x, tets, Dm_inv, vol, lam, mu, tet_q, iterations, nl_k, nl_wmax, grad, slots,
+                  values):
+    """update_rotations + add_all in one pass for an isotropic material (lam, mu [Pa]; K0 not
+    read): refreshes tet_q, returns the energy [J] (Eq. 7-8), adds the gradient (Eq. 9) into grad
+    and the Hessian (Eq. 10) into CSR values through slots (T,12,12)."""
+    F = np.empty((3, 3))
+    D = np.empty((3, 3))
+    gr = np.empty((4, 3))   # grad N_a [1/m]
+    h = np.empty((4, 3))    # R grad N_a
+    f = np.empty((4, 3))    # R K0 u per node [N]
+    gg = np.empty((4, 4))
+    e_sum = 0.0
+    for e in range(tets.shape[0]):
+        i0, i1, i2, i3 = tets[e, 0], tets[e, 1], tets[e, 2], tets[e, 3]
+        for r in range(3):
+            D[r, 0] = x[i1, r] - x[i0, r]
+            D[r, 1] = x[i2, r] - x[i0, r]
+            D[r, 2] = x[i3, r] - x[i0, r]
+        for k in range(3):
+            for c in range(3):
+                gr[k + 1, c] = Dm_inv[e, k, c]
+        for c in range(3):
+            gr[0, c] = -(gr[1, c] + gr[2, c] + gr[3, c])
+        for r in range(3):
+            for c in range(3):
+                F[r, c] = D[r, 0] * gr[1, c] + D[r, 1] * gr[2, c] + D[r, 2] * gr[3, c]
+        qx, qy, qz, qw = _polar_update(F, tet_q[e, 0], tet_q[e, 1], tet_q[e, 2], tet_q[e, 3], iterations)
+        tet_q[e, 0], tet_q[e, 1], tet_q[e, 2], tet_q[e, 3] = qx, qy, qz, qw
+        R00, R01, R02, R10, R11, R12, R20, R21, R22 = quat_matrix_entries(qx, qy, qz, qw)
+        # G = R^T F, eps = sym(G) - I, sigma = lam tr(eps) I + 2 mu eps
+        G = D  # Ds is no longer needed: reuse its storage for G
+        for c in range(3):
+            f0, f1, f2 = F[0, c], F[1, c], F[2, c]
+            G[0, c] = R00 * f0 + R10 * f1 + R20 * f2
+            G[1, c] = R01 * f0 + R11 * f1 + R21 * f2
+            G[2, c] = R02 * f0 + R12 * f1 + R22 * f2
+        e00, e11, e22 = G[0, 0] - 1.0, G[1, 1] - 1.0, G[2, 2] - 1.0
+        e01 = 0.5 * (G[0, 1] + G[1, 0])
+        e02 = 0.5 * (G[0, 2] + G[2, 0])
+        e12 = 0.5 * (G[1, 2] + G[2, 1])
+        ltr = lam * (e00 + e11 + e22)
+        s00, s11, s22 = ltr + 2.0 * mu * e00, ltr + 2.0 * mu * e11, ltr + 2.0 * mu * e22
+        s01, s02, s12 = 2.0 * mu * e01, 2.0 * mu * e02, 2.0 * mu * e12
+        W = 0.5 * (s00 * e00 + s11 * e11 + s22 * e22) + s01 * e01 + s02 * e02 + s12 * e12
+        V = vol[e]
+        energy = V * W
+        # P = V R sigma; f_a = P g_a
+        P00 = V * (R00 * s00 + R01 * s01 + R02 * s02)
+        P01 = V * (R00 * s01 + R01 * s11 + R02 * s12)
+        P02 = V * (R00 * s02 + R01 * s12 + R02 * s22)
+        P10 = V * (R10 * s00 + R11 * s01 + R12 * s02)
+        P11 = V * (R10 * s01 + R11 * s11 + R12 * s12)
+        P12 = V * (R10 * s02 + R11 * s12 + R12 * s22)
+        P20 = V * (R20 * s00 + R21 * s01 + R22 * s02)
+        P21 = V * (R20 * s01 + R21 * s11 + R22 * s12)
+        P22 = V * (R20 * s02 + R21 * s12 + R22 * s22)
+        for a in range(4):
+            g0, g1, g2 = gr[a, 0], gr[a, 1], gr[a, 2]
+            f[a, 0] = P00 * g0 + P01 * g1 + P02 * g2
+            f[a, 1] = P10 * g0 + P11 * g1 + P12 * g2
+            f[a, 2] = P20 * g0 + P21 * g1 + P22 * g2
+            h[a, 0] = R00 * g0 + R01 * g1 + R02 * g2
+            h[a, 1] = R10 * g0 + R11 * g1 + R12 * g2
+            h[a, 2] = R20 * g0 + R21 * g1 + R22 * g2
+        for a in range(4):
+            for b in range(a, 4):
+                gg[a, b] = gr[a, 0] * gr[b, 0] + gr[a, 1] * gr[b, 1] + gr[a, 2] * gr[b, 2]
+        scale = 1.0
+        c_over = 0.0
+        if nl_k > 0.0 and W > nl_wmax:
+            r = W / nl_wmax - 1.0
+            energy += V * 0.5 * nl_k * r * r
+            scale = 1.0 + nl_k / nl_wmax * r
+            c_over = nl_k / (nl_wmax * nl_wmax * V)
+        e_sum += energy
+        sl = scale * lam * V
+        sm = scale * mu * V
+        for a in range(4):
+            na = 3 * tets[e, a]
+            for i in range(3):
+                grad[na + i] += scale * f[a, i]
+        for a in range(4):
+            for b in range(a, 4):
+                dg = sm * gg[a, b]
+                for i in range(3):
+                    hai = h[a, i]
+                    hbi = h[b, i]
+                    fai = c_over * f[a, i]
+                    for j in range(3):
+                        v = sl * hai * h[b, j] + sm * h[a, j] * hbi + fai * f[b, j]
+                        if i == j:
+                            v += dg
+                        # unsigned index: no wrap-around test per scatter
+                        values[np.uint64(slots[e, 3 * a + i, 3 * b + j])] += v
+                        if a != b:
+                            values[np.uint64(slots[e, 3 * b + j, 3 * a + i])] += v
+    return e_sum

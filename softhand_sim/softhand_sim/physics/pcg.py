@@ -1,0 +1,281 @@
+"""Preconditioned conjugate gradient over the fixed CSR pattern (Sect. 3.1: warm start, tol 1e-5,
+iteration cap). All compiled; scratch arrays are owned by the caller and reused every step.
+
+Preconditioners:
+  PRECOND_JACOBI        the paper's: inverse diagonal
+  PRECOND_BLOCK_JACOBI  inverse 3x3 node blocks and 6x6 rigid-body blocks
+  PRECOND_FACTOR        a sparse LDLᵀ of a recent M + dt^2 H (default; ldlt.py), refreshed in equal
+                        slices every step: the stiff bone-tissue and joint springs couple bones and
+                        nodes, which only a factorization captures (Jacobi hits the iteration cap)
+"""
+import numpy as np
+from numba import njit
+
+from softhand_sim.physics.ldlt import ldlt_solve
+
+PRECOND_JACOBI = 0
+PRECOND_BLOCK_JACOBI = 1
+PRECOND_FACTOR = 2
+
+
+class Factor:
+    """LDLᵀ of M + dt² H (ldlt.py: ordering and symbolic analysis once per pattern) used as the
+    PCG preconditioner, refreshed continuously in equal slices: each step factors 1/K of the
+    rows of a snapshot of the matrix (K from a cost model, or so a slice is `slice_flops`), and when the
+    last slice is done the new factor replaces the one in use and the next snapshot is taken.
+    Every step pays the same small cost (no refactorization spikes; p99 ~ median) and the factor
+    in use is at most 2K steps old (K = 1: the factor of the current matrix, every step). The
+    solver runs two slices per step after a CG that needed many iterations.
+
+    arrays: the tuple pcg() passes to ldlt_solve (the factor in use)."""
+
+    def __init__(self, n, indptr=None, indices=None, slice_flops=None, max_slices=50):
+        self.n = n
+        self.valid = False
+        self.sym = None
+        e_i, e_f = np.zeros(1, np.int32), np.zeros((1, 3, 3))
+        nb = n // 3
+        self.arrays = (np.zeros(nb + 1, np.int32), e_i, e_f, np.tile(np.eye(3), (nb, 1, 1)),
+                       np.arange(nb, dtype=np.int32), np.zeros(n))
+        self.slice_flops, self.max_slices = slice_flops, max_slices
+        if indptr is not None:
+            self.analyse(indptr, indices)
+
+    def analyse(self, indptr, indices):
+        """Ordering, symbolic factorization and the slice boundaries (once per pattern)."""
+        from softhand_sim.physics.ldlt import Symbolic
+        self.indptr, self.indices = indptr, indices
+        self.sym = sym = Symbolic(indptr, indices, self.n)
+        self.nnz = sym.nnz_L
+        if self.slice_flops is None:
+            # K minimizing F/K + c it(K) with it(K) ~ 1 + 4 log2 K (measured on the hands: 1, 5,
+            # 7, 9, 14 iterations for K = 1, 2, 4, 8, 16): K = F ln2 / (4 c), with the factor F and
+            # one CG iteration c (LDLᵀ solve + matvec) estimated from their flops and the speeds
+            # measured for these kernels (~4, ~7, ~2 GFlop/s)
+            t_factor = sym.flops / 4e9
+            t_iter = 36.0 * sym.nnz_L / 7e9 + 2.0 * len(indices) / 2e9
+            want = int(0.17 * t_factor / t_iter)  # rounded down: K = 2 costs 4 more iterations
+        else:
+            want = int(np.ceil(sym.flops / self.slice_flops))
+        self.slices = int(np.clip(want, 1, self.max_slices))
+        self.bounds = sym.chunks(self.slices)
+        self.slices = len(self.bounds) - 1
+        self._buf = [(np.zeros((sym.nnz_L, 3, 3)), np.tile(np.eye(3), (sym.nb, 1, 1)))
+                     for _ in range(2)]
+        self._snap = np.zeros(len(indices))
+        self._y = np.zeros((sym.nb, 3, 3))
+        self._tmp = np.zeros(self.n)
+        self._next = 0          # next slice of the factorization in progress (0: none started)
+        self._active = 0        # buffer in use by the solves
+        self.bad_pivots = 0
+
+    def _run_slice(self, s):
+        from softhand_sim.physics.ldlt import ldlt_numeric_rows
+        sym = self.sym
+        Lx, Dinv = self._buf[1 - self._active]
+        self.bad_pivots += ldlt_numeric_rows(
+            int(self.bounds[s]), int(self.bounds[s + 1]), self._snap, sym.blk_slots, sym.up_ptr, sym.up_row,
+            sym.up_slot, sym.row_ptr, sym.row_col, sym.row_slot, sym.Lp, sym.Li, Lx, Dinv, self._y)
+
+    def _publish(self):
+        self._active = 1 - self._active
+        Lx, Dinv = self._buf[self._active]
+        sym = self.sym
+        self.arrays = (sym.Lp, sym.Li, Lx, Dinv, sym.perm, self._tmp)
+        self.valid = True
+
+    def refresh(self, indptr, indices, values):
+        """A complete factorization of values now (the first step, or on demand)."""
+        if self.sym is None:
+            self.analyse(indptr, indices)
+        self._snap[:] = values
+        for s in range(self.slices):
+            self._run_slice(s)
+        self._next = 0
+        self._publish()
+
+    def advance(self, values, slices=1):
+        """Factor the next `slices` slices; a new snapshot of values starts each factorization.
+        Returns True when a new factor was published in this call."""
+        published = False
+        for _ in range(slices):
+            if self._next == 0:
+                self._snap[:] = values
+            self._run_slice(self._next)
+            self._next += 1
+            if self._next == self.slices:
+                self._next = 0
+                self._publish()
+                published = True
+        return published
+
+
+def triplet_pattern(indptr, indices):
+    """True when every row of the CSR pattern is a run of column triplets (3c, 3c+1, 3c+2): the
+    model's patterns are (whole node and body blocks), and csr_matvec3 relies on it."""
+    indptr = np.asarray(indptr, np.int64)
+    c = np.asarray(indices, np.int64)
+    if np.any(np.diff(indptr) % 3) or len(c) % 3:
+        return False
+    return bool(np.all(c[0::3] % 3 == 0) and np.all(c[1::3] == c[0::3] + 1)
+                and np.all(c[2::3] == c[0::3] + 2))
+
+
+_U = np.uint64
+
+
+@njit(cache=True)
+def csr_matvec(indptr, indices, values, x, out):
+    """out = A x (any CSR pattern). Indices are cast to unsigned: a signed index makes numba test
+    it for negative (wrap-around) values at every gather."""
+    for i in range(indptr.shape[0] - 1):
+        acc = 0.0
+        for k in range(_U(indptr[i]), _U(indptr[i + 1])):
+            acc += values[k] * x[_U(indices[k])]
+        out[i] = acc
+
+
+@njit(cache=True)
+def csr_matvec3(indptr, indices, values, x, out):
+    """out = A x for a pattern made of column triplets (triplet_pattern): one index read per
+    triplet and three independent partial sums (a single running sum is latency-bound)."""
+    one, two, three = _U(1), _U(2), _U(3)
+    for i in range(indptr.shape[0] - 1):
+        a0 = 0.0
+        a1 = 0.0
+        a2 = 0.0
+        for k in range(_U(indptr[i]), _U(indptr[i + 1]), three):
+            c = _U(indices[k])
+            a0 += values[k] * x[c]
+            a1 += values[k + one] * x[c + one]
+            a2 += values[k + two] * x[c + two]
+        out[i] = (a0 + a1) + a2
+
+
+@njit(cache=True)
+def _invert_spd(A):
+    """Inverse of a small SPD block by Cholesky; falls back to the inverse diagonal when the block
+    is not positive definite (cannot happen for M + dt^2 H with PSD H; kept as a guard)."""
+    n = A.shape[0]
+    L = np.zeros((n, n))
+    for j in range(n):
+        s = A[j, j]
+        for k in range(j):
+            s -= L[j, k] * L[j, k]
+        if s <= 0.0:
+            out = np.zeros((n, n))
+            for i in range(n):
+                out[i, i] = 1.0 / A[i, i] if A[i, i] > 0.0 else 0.0
+            return out
+        L[j, j] = np.sqrt(s)
+        for i in range(j + 1, n):
+            s = A[i, j]
+            for k in range(j):
+                s -= L[i, k] * L[j, k]
+            L[i, j] = s / L[j, j]
+    Linv = np.zeros((n, n))
+    for j in range(n):
+        Linv[j, j] = 1.0 / L[j, j]
+        for i in range(j + 1, n):
+            s = 0.0
+            for k in range(j, i):
+                s -= L[i, k] * Linv[k, j]
+            Linv[i, j] = s / L[i, i]
+    return Linv.T @ Linv
+
+
+@njit(cache=True)
+def build_block_jacobi(values, node_slots, body_slots, node_inv, body_inv):
+    """node_inv (N,3,3), body_inv (B,6,6) <- inverses of the diagonal blocks of the matrix."""
+    A3 = np.empty((3, 3))
+    for n in range(node_slots.shape[0]):
+        for i in range(3):
+            for j in range(3):
+                A3[i, j] = values[node_slots[n, i, j]]
+        node_inv[n] = _invert_spd(A3)
+    A6 = np.empty((6, 6))
+    for b in range(body_slots.shape[0]):
+        for i in range(6):
+            for j in range(6):
+                A6[i, j] = values[body_slots[b, i, j]]
+        body_inv[b] = _invert_spd(A6)
+
+
+@njit(cache=True)
+def _apply_precond(kind, r, z, diag_inv, node_inv, body_inv, body_dof0, fac):
+    if kind == PRECOND_FACTOR:
+        ldlt_solve(fac[0], fac[1], fac[2], fac[3], fac[4], fac[5], r, z)
+        return
+    if kind == PRECOND_JACOBI:
+        for i in range(r.shape[0]):
+            z[i] = diag_inv[i] * r[i]
+        return
+    for n in range(node_inv.shape[0]):
+        o = 3 * n
+        for i in range(3):
+            z[o + i] = (node_inv[n, i, 0] * r[o] + node_inv[n, i, 1] * r[o + 1]
+                        + node_inv[n, i, 2] * r[o + 2])
+    for b in range(body_inv.shape[0]):
+        o = body_dof0 + 6 * b
+        for i in range(6):
+            acc = 0.0
+            for j in range(6):
+                acc += body_inv[b, i, j] * r[o + j]
+            z[o + i] = acc
+
+
+@njit(cache=True)
+def pcg(indptr, indices, values, b, x, tol, max_iter, kind, diag_slot, node_slots, body_slots,
+        body_dof0, diag_inv, node_inv, body_inv, r, z, p, Ap, fac, triplets=False):
+    """Solve A x = b in place from the warm start x. Stops when ||r|| <= tol ||b|| or after
+    max_iter iterations. fac: Factor.arrays (used by PRECOND_FACTOR). triplets: the pattern is
+    made of column triplets (triplet_pattern; faster products). Returns (iterations, relative
+    residual ||r||/||b||, hit_cap)."""
+    n = b.shape[0]
+    if kind == PRECOND_JACOBI:
+        for i in range(n):
+            d = values[diag_slot[i]]
+            diag_inv[i] = 1.0 / d if d > 0.0 else 0.0
+    elif kind == PRECOND_BLOCK_JACOBI:
+        build_block_jacobi(values, node_slots, body_slots, node_inv, body_inv)
+    bnorm = np.sqrt(np.dot(b, b))
+    if bnorm == 0.0:
+        bnorm = 1.0
+    if triplets:
+        csr_matvec3(indptr, indices, values, x, Ap)
+    else:
+        csr_matvec(indptr, indices, values, x, Ap)
+    for i in range(n):
+        r[i] = b[i] - Ap[i]
+    rnorm = np.sqrt(np.dot(r, r))
+    if rnorm <= tol * bnorm:
+        return 0, rnorm / bnorm, False
+    _apply_precond(kind, r, z, diag_inv, node_inv, body_inv, body_dof0, fac)
+    p[:] = z
+    rz = np.dot(r, z)
+    it = 0
+    while it < max_iter:
+        if triplets:
+            csr_matvec3(indptr, indices, values, p, Ap)
+        else:
+            csr_matvec(indptr, indices, values, p, Ap)
+        pAp = np.dot(p, Ap)
+        if pAp <= 0.0:
+            break
+        alpha = rz / pAp
+        rr = 0.0
+        for i in range(n):
+            x[i] += alpha * p[i]
+            r[i] -= alpha * Ap[i]
+            rr += r[i] * r[i]
+        it += 1
+        rnorm = np.sqrt(rr)
+        if rnorm <= tol * bnorm:
+            return it, rnorm / bnorm, False
+        _apply_precond(kind, r, z, diag_inv, node_inv, body_inv, body_dof0, fac)
+        rz_new = np.dot(r, z)
+        beta = rz_new / rz
+        rz = rz_new
+        for i in range(n):
+            p[i] = z[i] + beta * p[i]
+    return it, rnorm / bnorm, it >= max_iter

@@ -1,0 +1,304 @@
+"""rclpy helpers shared by every softhand node: QoS of INTERFACE.md, topic table, diagnostics,
+rate/jitter meter, parameter declaration from a schema, command line and a quiet main().
+
+A node file stays thin by using these:
+
+    def main(args=None):
+        run_node(MyNode, args)          # exits 0 on Ctrl-C, SIGTERM or external shutdown
+
+Only `*_node.py`, `ros_*.py` and `cli.py` import this module (it imports rclpy).
+"""
+from __future__ import annotations
+
+import argparse
+import math
+import signal
+import sys
+import time
+from collections import deque
+from typing import Callable, Mapping, Optional
+
+import numpy as np
+import rclpy
+from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
+from rclpy.executors import (ExternalShutdownException, ShutdownException, SingleThreadedExecutor,
+                             TimeoutException)
+from rclpy.node import Node
+from rclpy.signals import SignalHandlerOptions
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.utilities import remove_ros_args
+
+from softhand_sim.params import ParamError
+from softhand_sim.ros.msgs import diagnostic_array, diagnostic_status
+
+# ------------------------------------------------------------------------------------------- QoS
+
+#: Every softhand publisher (INTERFACE.md): reliable, volatile, keep last 10.
+PUB_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
+                     reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE)
+#: /hand/skin_mesh publisher and its subscribers: published once, kept for late joiners.
+LATCHED_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
+                         reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
+#: /tracker/hand_joints subscription: best effort so that any tracker (sensor-data QoS) matches.
+SENSOR_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=5,
+                        reliability=ReliabilityPolicy.BEST_EFFORT, durability=DurabilityPolicy.VOLATILE)
+#: Subscriptions to state topics (/hand/bones, /world/object_states, ...): only the latest matters.
+LATEST_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
+                        reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE)
+#: Recorder subscriptions: reliable, deep enough to absorb a burst while the writer is busy.
+RECORD_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000,
+                        reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE)
+
+# ---------------------------------------------------------------------------------------- topics
+
+#: INTERFACE.md topic table: topic -> ROS type name.
+TOPIC_TYPES = {
+    "/tracker/hand_joints": "geometry_msgs/msg/PoseArray",
+    "/hand/intermediate_bones": "geometry_msgs/msg/PoseArray",
+    "/hand/bones": "geometry_msgs/msg/PoseArray",
+    "/hand/object_states": "trajectory_msgs/msg/MultiDOFJointTrajectory",
+    "/world/object_states": "trajectory_msgs/msg/MultiDOFJointTrajectory",
+    "/hand/skin_vertices": "sensor_msgs/msg/PointCloud2",
+    "/hand/skin_mesh": "shape_msgs/msg/Mesh",
+    "/hand/skin_marker": "visualization_msgs/msg/Marker",
+    "/hand/contacts": "sensor_msgs/msg/PointCloud2",
+    "/world/markers": "visualization_msgs/msg/MarkerArray",
+    "/diagnostics": "diagnostic_msgs/msg/DiagnosticArray",
+}
+#: Topics whose publisher is transient local (subscribe with LATCHED_QOS to get the kept sample).
+LATCHED_TOPICS = frozenset({"/hand/skin_mesh"})
+
+
+def message_class(type_name: str):
+    """The rclpy message class of 'pkg/msg/Name' (ValueError naming the type if unknown)."""
+    parts = type_name.split("/")
+    if len(parts) != 3 or parts[1] != "msg":
+        raise ValueError(f"message type must look like 'pkg/msg/Name', got {type_name!r}")
+    try:
+        module = __import__(f"{parts[0]}.msg", fromlist=[parts[2]])
+        return getattr(module, parts[2])
+    except (ImportError, AttributeError):
+        raise ValueError(f"unknown message type {type_name!r} (is its package installed?)") from None
+
+
+# ----------------------------------------------------------------------------------- rate meter
+
+
+class RateMeter:
+    """Arrival rate and period jitter over the last `window` events (monotonic clock, seconds).
+
+    `tick()` at each event; `stats()` -> dict rate_hz, period_p50_ms, period_p99_ms,
+    jitter_p99_ms (|period - median| p99), count (events since start). Pure numpy, no ROS.
+    """
+
+    def __init__(self, window: int = 500, clock: Callable[[], float] = time.monotonic):
+        self._times = deque(maxlen=int(window) + 1)
+        self._clock = clock
+        self.count = 0
+
+    def tick(self, t: Optional[float] = None) -> None:
+        self._times.append(self._clock() if t is None else float(t))
+        self.count += 1
+
+    def stats(self) -> dict:
+        t = np.asarray(self._times)
+        if t.size < 2:
+            return {"rate_hz": 0.0, "period_p50_ms": math.nan, "period_p99_ms": math.nan,
+                    "jitter_p99_ms": math.nan, "count": self.count}
+        dt = np.diff(t)
+        p50 = float(np.median(dt))
+        span = float(t[-1] - t[0])
+        return {"rate_hz": (t.size - 1) / span if span > 0 else math.inf,
+                "period_p50_ms": 1e3 * p50,
+                "period_p99_ms": 1e3 * float(np.percentile(dt, 99)),
+                "jitter_p99_ms": 1e3 * float(np.percentile(np.abs(dt - p50), 99)),
+                "count": self.count}
+
+
+# ---------------------------------------------------------------------------------- rejections
+
+
+class RejectionLog:
+    """Counts rejected inputs by reason; logs each reason at most once per `period` [s].
+
+    `log(reason, detail)` counts and maybe logs; `counts` (reason -> n) goes into /diagnostics.
+    Bad input must never stop a node, and a flood of it must not flood the log either.
+    """
+
+    def __init__(self, logger, period: float = 2.0, clock: Callable[[], float] = time.monotonic):
+        self._logger = logger
+        self._period = float(period)
+        self._clock = clock
+        self._last = {}
+        self.counts = {}
+
+    def log(self, reason: str, detail) -> None:
+        self.counts[reason] = self.counts.get(reason, 0) + 1
+        now = self._clock()
+        if now - self._last.get(reason, -math.inf) > self._period:
+            self._last[reason] = now
+            self._logger.warning(f"rejected {reason}: {detail} (total {self.counts[reason]})")
+
+
+# ---------------------------------------------------------------------------------- diagnostics
+
+
+class DiagnosticsPublisher:
+    """Publishes /diagnostics at `period` s from `collect() -> (values dict, level, message)`.
+
+    level is 'ok' | 'warn' | 'error' | 'stale'. The status name is '<node name>' unless given.
+    An exception in collect() is reported as an ERROR status (with its text), not swallowed.
+    """
+
+    def __init__(self, node: Node, collect: Callable[[], tuple], period: float = 1.0,
+                 name: Optional[str] = None, topic: str = "/diagnostics"):
+        self._node = node
+        self._collect = collect
+        self._name = name or node.get_name()
+        self._pub = node.create_publisher(message_class(TOPIC_TYPES["/diagnostics"]), topic, PUB_QOS)
+        self._timer = node.create_timer(float(period), self.publish_now)
+
+    def publish_now(self) -> None:
+        try:
+            values, level, message = self._collect()
+        except Exception as exc:  # report, do not kill the node over a statistics bug
+            values, level, message = {}, "error", f"diagnostics failed: {type(exc).__name__}: {exc}"
+            self._node.get_logger().error(message)
+        stamp = self._node.get_clock().now().to_msg()
+        self._pub.publish(diagnostic_array([diagnostic_status(self._name, values, level, message)], stamp))
+
+
+# ----------------------------------------------------------------------------------- parameters
+
+_PY_TYPES = (bool, int, float, str)
+
+
+def _spec_fields(name: str, spec):
+    """(default, description, min, max) of a schema entry: a plain default or a mapping/object."""
+    if isinstance(spec, _PY_TYPES) or isinstance(spec, (list, tuple)):
+        return spec, "", None, None
+    get = spec.get if isinstance(spec, Mapping) else (lambda k, d=None: getattr(spec, k, d))
+    if get("default") is None:
+        raise ValueError(f"parameter schema entry {name!r} has no default")
+    doc = get("doc") or get("description") or ""
+    unit = get("unit")
+    desc = f"{doc} [{unit}]" if unit else doc
+    lo, hi = get("min"), get("max")
+    rng = get("range")
+    if rng is not None:
+        lo, hi = rng
+    return get("default"), desc, lo, hi
+
+
+def declare_parameters_from_schema(node: Node, schema: Mapping) -> dict:
+    """Declare every parameter of `schema` on `node`; return name -> value (after overrides).
+
+    schema: name -> default, or name -> mapping/object with default, doc (or description), unit,
+    and optional min/max (or range=(min, max)). Numeric bounds go into the descriptor, so ROS
+    refuses an out-of-range `-p name:=value` (InvalidParameterValueException names the parameter).
+    """
+    values = {}
+    for name, spec in schema.items():
+        default, desc, lo, hi = _spec_fields(name, spec)
+        descriptor = ParameterDescriptor(name=name, description=desc)
+        if lo is not None and hi is not None and isinstance(default, float) and not isinstance(default, bool):
+            descriptor.floating_point_range = [FloatingPointRange(from_value=float(lo), to_value=float(hi))]
+        elif lo is not None and hi is not None and isinstance(default, int) and not isinstance(default, bool):
+            descriptor.integer_range = [IntegerRange(from_value=int(lo), to_value=int(hi), step=1)]
+        param = node.declare_parameter(name, default, descriptor)
+        values[name] = param.value
+    return values
+
+
+# ------------------------------------------------------------------------------ CLI and main()
+
+
+def split_cli(parser: argparse.ArgumentParser, args=None):
+    """Parse the node's own flags, leaving `--ros-args ...` for rclpy.
+
+    Returns (namespace, full argv for rclpy.init). `--help` prints and exits 0 before rclpy
+    starts; a bad flag exits 2 with argparse's message on stderr.
+    """
+    argv = list(sys.argv if args is None else args)
+    own = remove_ros_args(args=argv)[1:]
+    return parser.parse_args(own), argv
+
+
+def run_node(make_node: Callable[..., Node], args=None, init_args=None, drain_s: float = 0.0) -> int:
+    """init, build the node, spin until stopped, shut down quietly; returns the exit code.
+
+    SIGINT (Ctrl-C) and SIGTERM set a stop flag (rclpy's own handlers are not installed, so the
+    context stays alive for the shutdown path); spin then ends within ~0.1 s. With drain_s > 0
+    the executor keeps taking whatever already arrived (callbacks still run) until a pass finds
+    nothing or drain_s is spent -- a recorder loses nothing that reached its process. Then the
+    node's `close()` runs if it has one (flushing files), the node is destroyed and rclpy shut
+    down. An external rclpy.shutdown() also ends spin quietly. A callback may raise NodeExit(code)
+    to stop with that exit code. A ParamError while building the node (a bad parameter) prints
+    one line naming the key and value and returns 1, with no traceback.
+    """
+    stop = {"signal": None}
+
+    def on_signal(signum, frame):
+        stop["signal"] = signum
+
+    rclpy.init(args=init_args if init_args is not None else args,
+               signal_handler_options=SignalHandlerOptions.NO)
+    old = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+    node = None
+    code = 0
+    executor = SingleThreadedExecutor()
+    try:
+        node = make_node()
+        executor.add_node(node)
+        while stop["signal"] is None and rclpy.ok():
+            executor.spin_once(timeout_sec=0.1)
+        if drain_s > 0 and rclpy.ok():
+            _drain(executor, drain_s)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    except NodeExit as exc:
+        code = exc.code
+        if str(exc):
+            print(str(exc), file=sys.stderr, flush=True)
+    except ParamError as exc:
+        print(f"error: {exc}", file=sys.stderr, flush=True)
+        code = 1
+    finally:
+        for s in old:  # a second Ctrl-C must not cut close() short
+            signal.signal(s, signal.SIG_IGN)
+        if node is not None:
+            close = getattr(node, "close", None)
+            if callable(close):
+                close()
+            executor.remove_node(node)
+            node.destroy_node()
+        executor.shutdown(timeout_sec=0)
+        rclpy.try_shutdown()
+    return code
+
+
+def _drain(executor, budget_s: float) -> None:
+    """Run ready callbacks until one short wait finds none (or the budget is spent)."""
+    deadline = time.monotonic() + budget_s
+    while time.monotonic() < deadline:
+        try:
+            handler, _entity, _node = executor.wait_for_ready_callbacks(timeout_sec=0.05)
+        except (TimeoutException, ShutdownException):
+            return
+        handler()
+        if handler.exception() is not None:
+            raise handler.exception()
+
+
+class NodeExit(Exception):
+    """Raised from a callback to leave spin with an exit code (e.g. play_node at the end of a bag)."""
+
+    def __init__(self, code: int = 0, message: str = ""):
+        super().__init__(message)
+        self.code = int(code)
+
+
+def fail(message: str, code: int = 1) -> "NoReturn":  # noqa: F821
+    """Print `message` on stderr (no traceback) and exit with `code`."""
+    print(f"error: {message}", file=sys.stderr, flush=True)
+    raise SystemExit(code)

@@ -1,0 +1,281 @@
+"""The full simulation as sim_node runs it, without ROS: hand + objects + contact + copies + guard.
+
+SimRuntime owns one Solver (one Newton step + PCG per step, solver.py), its contact system
+(contact.py), the engine copies of the dynamic objects (coupling.ObjectCopy, Sect. 3.7) and the
+divergence guard. sim_node only converts messages to the arrays this class takes and returns.
+
+Timeline of a step at time t: bone targets = the latest intermediate bones (held between
+updates, Sect. 3.6); object targets = the engine copies extrapolated to t + dt (the end of the
+step, where the implicit step evaluates the coupling); solver.step; guard; outputs.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from softhand_sim.physics.contact import detection as contact_mod
+from softhand_sim.physics.coupling import ObjectCopy, limit_coupling_stiffness
+from softhand_sim.physics.coupling import warm_up as coupling_warm_up
+from softhand_sim.handmodel import load_or_build_hand
+from softhand_sim.physics.model import build_model
+from softhand_sim.physics.rotations import quat_mul, quat_conj, quat_to_matrix
+from softhand_sim.scene import load_scene
+from softhand_sim.physics.solver import Solver
+from softhand_sim.physics.state import State
+
+# sim_node parameter -> solver parameter (model.DEFAULT_PARAMS), where the names differ.
+_SOLVER_KEYS = {
+    "youngs_modulus": "youngs_modulus",
+    "poisson_ratio": "poisson_ratio",
+    "tissue_density": "tissue_density",
+    "nonlinear_w_max": "nonlinear_w_max",
+    "nonlinear_k": "nonlinear_k",
+    "bone_tissue_k_total": "bone_tissue_k_total",
+    "joint_stiffness": "joint_stiffness",
+    "joint_limit_stiffness": "joint_limit_stiffness",
+    "tracking_kx": "bone_target_kx_palm",
+    "tracking_ktheta": "bone_target_ktheta",
+    "object_kx": "object_target_kx",
+    "object_ktheta": "object_target_ktheta",
+    "gravity_bones": "gravity_bones",
+    "gravity_tissue": "gravity_tissue",
+    "gravity_objects": "gravity_objects",
+    "cg_tolerance": "cg_tolerance",
+    "cg_max_iterations": "cg_max_iterations",
+    "preconditioner": "preconditioner",
+}
+# Divergence guard (robustness): a step is rejected when its state is not finite, when the
+# kinetic energy jumps above this bound [J] (a 0.4 kg hand at 70 m/s: far beyond the ~24 m/s a 1 m
+# teleport reaches with the 500 N/m palm coupling), or when CG
+# stopped at its cap with a residual this far above its tolerance.
+GUARD_MAX_KINETIC_ENERGY = 1000.0
+GUARD_CAP_RESIDUAL_FACTOR = 1e3
+DISPLAY_TRIANGLES = 3000  # /hand/skin_marker: a decimated skin keeps 10 Hz markers light
+
+
+def solver_params(params):
+    return {solver_key: params[key] for key, solver_key in _SOLVER_KEYS.items()}
+
+
+@dataclass
+class StepOutput:
+    t: float                    # [s] time of the state (end of the step)
+    bone_poses: np.ndarray      # (16,7)
+    object_names: list
+    object_poses: np.ndarray    # (O,7) hand-side instances, COM frames
+    object_twists: np.ndarray   # (O,6) [m/s, rad/s] world
+    object_accels: np.ndarray   # (O,6) finite differences over the step
+    skin_vertices: np.ndarray   # (V,3)
+    contacts: dict              # contact.ContactSystem.output(...)
+    stats: object               # solver.StepStats
+    rejected: bool = False      # the guard rejected this step: state is the last good one
+    warning: str = ""
+    node_x: np.ndarray = field(default=None, repr=False)
+
+
+def _pose_transform(target, rest):
+    """(R, p) of the rigid motion taking pose `rest` onto pose `target`."""
+    dq = quat_mul(target[3:7], quat_conj(rest[3:7]))
+    rot = quat_to_matrix(dq)
+    return rot, dq, target[:3] - rot @ rest[:3]
+
+
+class SimRuntime:
+    def __init__(self, params, scene=None, asset=None):
+        self.params = params
+        self.scene = scene if scene is not None else load_scene(params["scene_file"] or None)
+        self.asset = asset if asset is not None else load_or_build_hand(side=params["hand_side"],
+                                                                        resolution=params["mesh"])
+        self.objects = list(self.scene.dynamic_objects)
+        self.object_names = [o.name for o in self.objects]
+        self.model = build_model(self.asset, solver_params(params), self.objects)
+        self.solver = Solver(self.model)
+        self.contacts = contact_mod.attach(self.solver, self.scene, self.asset, kn=params["contact_kn"],
+                                           kf=params["contact_kf"])
+        self.state = State.at_rest(self.model)
+        self.good_state = self.state.copy()
+        nb = self.model.bone_count
+        # Same capped stiffness as the world side (both must use identical values, coupling.py).
+        caps = [limit_coupling_stiffness(params["object_kx"], params["object_ktheta"], o.mass,
+                                         o.inertia_local, params["object_max_omega"]) for o in self.objects]
+        self.object_kx = np.array([c[0] for c in caps])
+        self.object_ktheta = np.array([c[1] for c in caps])
+        self.copies = [ObjectCopy(n, extrapolate=params["extrapolate"], timeout=params["copy_timeout"])
+                       for n in self.object_names]
+        self.object_targets = np.array([o.pose for o in self.objects]).reshape(-1, 7)
+        self.bone_targets = None
+        self.bone_target_stamp = None
+        self.placed = False
+        self.rejected_steps = 0
+        self.steps = 0
+        self.last_t = 0.0
+        self._prev_body_v = self.state.body_v[nb:].copy()
+        self._skin = np.empty((len(self.model.skin_tet), 3))
+        self._display = None
+
+    # ---------------------------------------------------------------- description and meshes
+    def describe(self):
+        m = self.model
+        return (f"{self.params['hand_side']} hand, {len(m.tets)} tets, {m.node_count} nodes, "
+                f"{m.dof_count} dofs, {len(self.asset.skin_triangles)} skin triangles, objects "
+                f"{self.object_names}, contact points {self.contacts.model.point_count}, "
+                f"preconditioner {self.params['preconditioner']}")
+
+    def skin_rest_mesh(self):
+        return np.asarray(self.asset.skin_vertices), np.asarray(self.asset.skin_triangles)
+
+    def _display_embedding(self):
+        """A decimated copy of the skin, each vertex embedded in the tet of its nearest skin vertex."""
+        if self._display is None:
+            import fast_simplification
+            from scipy.spatial import cKDTree
+
+            verts, tris = self.skin_rest_mesh()
+            ratio = max(0.0, 1.0 - DISPLAY_TRIANGLES / len(tris))
+            dv, dt = fast_simplification.simplify(verts.astype(np.float32), tris.astype(np.int32), ratio)
+            dv = dv.astype(np.float64)
+            _, nearest = cKDTree(verts).query(dv)
+            tet = np.asarray(self.asset.skin_tet)[nearest]
+            corners = np.asarray(self.asset.tet_nodes)[np.asarray(self.asset.tets)[tet]]  # (D,4,3)
+            mat = np.transpose(corners[:, 1:] - corners[:, :1], (0, 2, 1))
+            w = np.linalg.solve(mat, (dv - corners[:, 0])[:, :, None])[:, :, 0]
+            bary = np.column_stack([1.0 - w.sum(axis=1), w])
+            self._display = (np.asarray(self.asset.tets)[tet], bary, np.asarray(dt, dtype=np.int32))
+        return self._display
+
+    def display_mesh(self, out=None):
+        """(vertices (D,3), triangles) of the decimated skin at the current state."""
+        nodes, bary, tris = self._display_embedding()
+        x = self.state.node_x
+        return np.einsum("dk,dki->di", bary, x[nodes]), tris
+
+    # ---------------------------------------------------------------- inputs
+    def set_bone_targets(self, poses, stamp=None):
+        """Intermediate bones (16,7); the first call also places the hand at the targets' palm."""
+        poses = np.asarray(poses, dtype=np.float64)
+        nb = self.model.bone_count
+        if poses.shape != (nb, 7):
+            raise ValueError(f"bone targets must have shape ({nb}, 7), got {poses.shape}")
+        if not np.all(np.isfinite(poses)):
+            raise ValueError("bone targets contain non-finite values")
+        norms = np.linalg.norm(poses[:, 3:], axis=1)
+        if np.any(np.abs(norms - 1.0) > 1e-3):
+            raise ValueError(f"bone target quaternions are not unit (norms {norms.min():.3g}..{norms.max():.3g})")
+        poses = poses.copy()
+        poses[:, 3:] /= norms[:, None]
+        self.bone_targets = poses
+        self.bone_target_stamp = stamp
+        self.solver.set_bone_targets(poses)
+        if not self.placed:
+            self.place_hand(poses[0])
+
+    def warm_up(self, dt):
+        """Run one throwaway step so numba compiles (or loads from its cache) every kernel of the
+        step now, not during the first tracked second; the runtime is left exactly as it was.
+
+        On a fresh checkout the first step compiles for about a minute: a node that published
+        before this would simulate nothing while its peers ran on.
+        """
+        saved = (self.state.copy(), self.good_state.copy(), self.bone_targets, self.placed,
+                 self.steps, self._prev_body_v.copy(), self.object_targets.copy())
+        self.set_bone_targets(self.model.body_rest_pose[:self.model.bone_count])
+        self.step(dt, 0.0)
+        self.display_mesh()
+        coupling_warm_up()
+        (self.state, self.good_state, self.bone_targets, self.placed, self.steps, self._prev_body_v,
+         self.object_targets) = saved
+        self.contacts.reset()
+        self.rejected_steps = 0
+        self.solver.set_bone_targets(self.model.body_rest_pose[:self.model.bone_count])
+
+    def place_hand(self, palm_pose):
+        """Teleport the whole hand rigidly so that its palm is at `palm_pose` (at rest otherwise)."""
+        m, s = self.model, self.state
+        rot, dq, shift = _pose_transform(np.asarray(palm_pose, float), m.body_rest_pose[0])
+        s.node_x[:] = m.node_rest @ rot.T + shift
+        s.v[:] = 0.0
+        for b in range(m.bone_count):
+            rest = m.body_rest_pose[b]
+            pose = np.concatenate([rot @ rest[:3] + shift, quat_mul(dq, rest[3:])])
+            s.set_body_pose(m, b, pose)
+        s.tet_q[:] = 0.0
+        s.tet_q[:, 3] = 1.0
+        self.contacts.reset()
+        self.good_state = s.copy()
+        self.placed = True
+
+    def set_object_copies(self, names, poses, twists, accels, stamp):
+        """Engine copies of objects; returns a list of rejection messages (unknown names, bad values)."""
+        errors = []
+        for i, name in enumerate(names):
+            if name not in self.object_names:
+                errors.append(f"unknown object {name!r}")
+                continue
+            try:
+                self.copies[self.object_names.index(name)].update(poses[i], twists[i], accels[i], stamp)
+            except ValueError as exc:
+                errors.append(str(exc))
+        return errors
+
+    def stale_objects(self, t):
+        return [c.name for c in self.copies if c.is_stale(t)]
+
+    # ---------------------------------------------------------------- the step
+    def _update_object_targets(self, t, dt):
+        for i, copy in enumerate(self.copies):
+            if copy.pose is None:
+                continue  # no copy yet: keep the scene pose as target
+            if copy.is_stale(t):
+                self.object_targets[i] = copy.pose  # frozen at the last copy: no extrapolation
+            else:
+                self.object_targets[i] = copy.target(t + dt)[0]
+        if len(self.copies):
+            self.solver.set_object_targets(self.object_targets, kx=self.object_kx, ktheta=self.object_ktheta)
+
+    def step(self, dt, t):
+        """Advance by dt from time t; returns StepOutput, or None while no bone target arrived."""
+        if self.bone_targets is None:
+            return None
+        nb = self.model.bone_count
+        self.last_t = t
+        self._update_object_targets(t, dt)
+        stats = self.solver.step(self.state, dt)
+        self.steps += 1
+        warning = self._guard(stats)
+        rejected = bool(warning)
+        if rejected:
+            self.rejected_steps += 1
+            self.state = self.good_state.copy()
+            self.contacts.reset()
+        else:
+            self.good_state = self.state.copy()
+        body_v = self.state.body_v[nb:]
+        accels = (body_v - self._prev_body_v) / dt
+        self._prev_body_v = body_v.copy()
+        self.solver.skin_positions(self.state, self._skin)
+        s = self.state
+        return StepOutput(
+            t=t + dt, bone_poses=s.bone_pose.copy(), object_names=self.object_names,
+            object_poses=s.object_pose.copy(), object_twists=body_v.copy(), object_accels=accels,
+            skin_vertices=self._skin, contacts=self.contacts.output(s.node_x, s.body_x, s.body_q),
+            stats=stats, rejected=rejected, warning=warning, node_x=s.node_x)
+
+    def _guard(self, stats):
+        """'' if the new state is acceptable, else why the step is rejected."""
+        s = self.state
+        if not (np.all(np.isfinite(s.node_x)) and np.all(np.isfinite(s.v)) and np.all(np.isfinite(s.body_pose))):
+            return "solver guard: non-finite state, step rejected and last good state restored"
+        ke = self.solver.kinetic_energy(s)
+        if not np.isfinite(ke) or ke > GUARD_MAX_KINETIC_ENERGY:
+            return f"solver guard: kinetic energy {ke:.3g} J exceeds {GUARD_MAX_KINETIC_ENERGY} J, step rejected"
+        if stats.hit_cap and stats.residual > GUARD_CAP_RESIDUAL_FACTOR * self.solver.cg_tol:
+            return (f"solver guard: CG stopped at its cap ({stats.cg_iters} iterations) with relative "
+                    f"residual {stats.residual:.3g}, step rejected")
+        return ""
+
+    def diagnostics(self):
+        c = self.contacts
+        return {"contacts": int(c.count), "collision_ms": float(c.collision_ms),
+                "rejected_steps": self.rejected_steps, "steps": self.steps,
+                "stale_objects": ",".join(self.stale_objects(self.last_t)) or "-"}

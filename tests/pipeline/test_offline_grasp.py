@@ -1,0 +1,95 @@
+"""The whole pipeline offline (softhand_sim/softhand_sim/commands/offline.py: bag -> adapter -> 250 Hz loop -> 60 Hz
+sim <-> 120 Hz pybullet world, no ROS) on the sample bags: pressing the table, grasping the ball."""
+import numpy as np
+import pytest
+
+from softhand_sim.commands.offline import run_pipeline
+from softhand_sim.params import load_params
+from softhand_sim.scenarios import tracker_bags
+from softhand_sim.scenarios.tracker_bags import PRESS_DEPTH, TABLE_TOP
+
+
+@pytest.fixture(scope="module")
+def press():
+    return run_pipeline("press_table")
+
+
+def test_press_table_skin_stays_on_the_table(press):
+    """press_table: while the tracked palm goes PRESS_DEPTH (3 cm) below the table top, the
+    simulated skin stays above the table within 5 mm (elastic tracking absorbs the rest)."""
+    assert press.tracked_palm[:, 2].min() < TABLE_TOP - 0.8 * PRESS_DEPTH
+    touching = press.other_contacts > 0
+    assert touching.sum() > 60            # the hand rests on the table for over a second
+    assert press.skin_min_z.min() > TABLE_TOP - 0.005
+    assert press.rejected_steps == 0
+
+
+def test_press_table_forces_bounded(press):
+    """press_table: contact forces on the table stay bounded by what the elastic tracking can
+    push: the palm's translational chain (tracked -> intermediate -> sim palm: tracked_kx and
+    sim_kx in series, config/softhand.yaml) times the tracked-vs-simulated palm gap, plus the
+    digits' torques (bounded by a generous 10 N); single skin points carry under 2 N."""
+    tp = load_params("tracking_node")
+    k_series = 1.0 / (1.0 / tp["tracked_kx"] + 1.0 / tp["sim_kx"])
+    gap = np.maximum(press.palm[:, 2] - press.tracked_palm[:, 2], 0.0)
+    assert np.all(press.other_force <= k_series * gap + 10.0)
+    assert press.max_point_force.max() < 2.0
+    assert np.all(np.isfinite(press.other_force))
+
+
+def test_offline_pipeline_is_deterministic():
+    """Two runs of the same bag segment give identical records (event order fixed, no clocks)."""
+    a = run_pipeline("grasp_short", until=1.2)
+    b = run_pipeline("grasp_short", until=1.2)
+    np.testing.assert_array_equal(a.t, b.t)
+    np.testing.assert_array_equal(a.palm, b.palm)
+    np.testing.assert_array_equal(a.ball_engine, b.ball_engine)
+
+
+def test_grasp_short_lifts_holds_and_drops_the_ball():
+    """grasp_short (caging grasp, 12 cm wrist lift): the engine ball rises >= 8 cm while held,
+    stays in the hand during the bag's hold phase (moves < 2 cm relative to the palm, >= 3
+    contacts throughout) and falls back onto the table after the release."""
+    r = run_pipeline("grasp_short")
+    t0, t1 = tracker_bags.grasp_short().phases["hold"]
+    s = r.summary(hold_window=(t0, t1))
+    assert s["ball_lift_max_m"] >= 0.08
+    window = (r.t >= t0) & (r.t <= t1)
+    assert np.all(r.ball_contacts[window] >= 3)
+    assert np.all(r.ball_engine[window, 2] - r.ball_z0 >= 0.08)
+    assert s["hold_slip_mm"] < 20.0
+    assert r.ball_engine[-1, 2] < r.ball_z0 + 0.01
+    assert r.rejected_steps == 0
+
+
+def test_squeeze_holds_the_ball_on_the_table_and_lets_go():
+    """squeeze (cage, squeeze 1-2 cm deeper on the table, ease back, open): the ball stays
+    caged (>= 3 contacts) through the squeeze phase with bounded forces (single skin points
+    under 2 N, net push on the ball under 10 N: the table takes the squeeze), stays on the table
+    (within 1 mm of its resting height) and no contact is left once the hand has opened and
+    retreated (end of the bag)."""
+    r = run_pipeline("squeeze")
+    t0, t1 = tracker_bags.squeeze().phases["squeeze"]
+    window = (r.t >= t0) & (r.t <= t1)
+    assert np.all(r.ball_contacts[window] >= 3)
+    assert r.max_point_force.max() < 2.0
+    assert r.ball_force.max() < 10.0
+    assert np.abs(r.ball_engine[:, 2] - r.ball_z0).max() < 0.001
+    assert np.all(r.ball_contacts[r.t > tracker_bags.squeeze().duration] == 0)
+    assert r.rejected_steps == 0
+
+
+def test_pinch_lift_lifts_holds_and_drops_the_ball():
+    """pinch_lift (thumb-index pinch, palm down, 12 cm wrist lift): the engine ball rises >= 8 cm
+    and stays >= 8 cm up through the 3 s hold, pinched all along (>= 20 skin contacts), moves
+    < 1 cm relative to the palm, and is back on the table after the pads open."""
+    r = run_pipeline("pinch_lift")
+    t0, t1 = tracker_bags.pinch_lift().phases["hold"]
+    s = r.summary(hold_window=(t0, t1))
+    window = (r.t >= t0) & (r.t <= t1)
+    assert s["ball_lift_max_m"] >= 0.08
+    assert np.all(r.ball_engine[window, 2] - r.ball_z0 >= 0.08)
+    assert np.all(r.ball_contacts[window] >= 20)
+    assert s["hold_slip_mm"] < 10.0
+    assert abs(r.ball_engine[-1, 2] - r.ball_z0) < 0.001
+    assert r.rejected_steps == 0

@@ -1,0 +1,43 @@
+"""Meshes and small rigid scenes built in tests (no hand model needed): boxes of tets, bodies."""
+import numpy as np
+
+from softhand_sim.physics.model import rigid_asset
+
+# Kuhn split of a unit cube into 6 tets sharing the main diagonal (conforming across cubes)
+_KUHN = [(0, 1, 3, 7), (0, 3, 2, 7), (0, 2, 6, 7), (0, 6, 4, 7), (0, 4, 5, 7), (0, 5, 1, 7)]
+
+
+def box_mesh(size, cells):
+    """Tet mesh of an axis-aligned box [0, size] with cells (nx, ny, nz): nodes (N,3), tets (T,4)
+    all positively oriented."""
+    nx, ny, nz = cells
+    g = np.stack(np.meshgrid(*[np.linspace(0, s, c + 1) for s, c in zip(size, cells)],
+                             indexing="ij"), axis=-1)
+    nodes = g.reshape(-1, 3)
+
+    def nid(i, j, k):
+        return (i * (ny + 1) + j) * (nz + 1) + k
+
+    tets = []
+    for i in range(nx):
+        for j in range(ny):
+            for k in range(nz):
+                corner = [nid(i + (c >> 0 & 1), j + (c >> 1 & 1), k + (c >> 2 & 1)) for c in range(8)]
+                for t in _KUHN:
+                    tets.append([corner[v] for v in t])
+    tets = np.array(tets, dtype=np.int32)
+    X = nodes[tets]
+    det = np.linalg.det(np.stack([X[:, 1] - X[:, 0], X[:, 2] - X[:, 0], X[:, 3] - X[:, 0]], axis=2))
+    flip = det < 0
+    tets[flip, 1], tets[flip, 2] = tets[flip, 2].copy(), tets[flip, 1].copy()
+    return nodes, tets
+
+
+def box_asset(size, cells, **fields):
+    nodes, tets = box_mesh(size, cells)
+    return rigid_asset(nodes, tets, **fields)
+
+
+def random_quat(rng):
+    q = rng.normal(size=4)
+    return q / np.linalg.norm(q)
