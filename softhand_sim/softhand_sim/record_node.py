@@ -7,7 +7,7 @@ What it writes: one mcap file plus metadata.yaml (rosbags Writer, mcap storage).
 carries its message definition as a ros2msg schema and the type's RIHS01 hash, so `ros2 bag
 info`, `ros2 bag play`, Foxglove and the mcap/mcap_ros2 readers open and decode it.
 
-How it subscribes: the topics of INTERFACE.md are subscribed at start with their contract QoS
+How it subscribes: the topics of docs/INTERFACE.md are subscribed at start with their contract QoS
 (reliable; /hand/skin_mesh transient local, so the mesh published once is received even when
 the recorder starts later; /tracker/hand_joints best effort, which matches any tracker). Any
 other topic is subscribed, like `ros2 bag record` does, when its first publisher is discovered
@@ -40,7 +40,7 @@ from softhand_sim.params import ParamError
 from softhand_sim.ros.params import declare_node_params
 from softhand_sim.ros.bagio import BagError, add_topic, flush_chunk, known_type, open_writer
 
-#: Default topic list: every softhand topic of INTERFACE.md but the heavy /hand/skin_vertices.
+#: Default topic list: every softhand topic of docs/INTERFACE.md but the heavy /hand/skin_vertices.
 DEFAULT_TOPICS = [t for t in TOPIC_TYPES if t != "/hand/skin_vertices"]
 
 
@@ -132,7 +132,7 @@ class RecordNode(Node):
         return record_qos(best_effort, latched)
 
     def _known_qos(self, topic: str) -> QoSProfile:
-        """QoS for an INTERFACE.md topic, subscribed before any publisher is seen."""
+        """QoS for a docs/INTERFACE.md topic, subscribed before any publisher is seen."""
         latched = topic in LATCHED_TOPICS
         best_effort = topic == "/tracker/hand_joints"  # trackers may publish sensor-data QoS
         return record_qos(best_effort, latched)

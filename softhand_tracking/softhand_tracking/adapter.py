@@ -1,11 +1,11 @@
-"""Tracker adapter: 26 OpenXR joint positions -> 16 bone poses in the frames of INTERFACE.md.
+"""Tracker adapter: 26 OpenXR joint positions -> 16 bone poses in the frames of docs/INTERFACE.md.
 
 Input: joint positions (26, 3) [m] in the tracker frame, OpenXR XR_EXT_hand_tracking order
 (`skeleton_names.OPENXR_JOINT_NAMES`). Joint orientations are not used: trackers often send
 identity, and positions fix every frame once a twist convention is chosen.
 
 Output: bone poses (16, 7) [m, quaternion x y z w] in `world`, bone order of
-`skeleton_names.BONE_NAMES`, frame of each bone (INTERFACE.md "Hand bones"):
+`skeleton_names.BONE_NAMES`, frame of each bone (docs/INTERFACE.md "Hand bones"):
 
 * origin at the proximal joint of the bone's segment (`skeleton_names.BONE_SEGMENTS`);
 * +x toward the distal joint;
@@ -32,7 +32,7 @@ Output: bone poses (16, 7) [m, quaternion x y z w] in `world`, bone order of
   not the flexion axis, is what reproduces the simulated skeleton's rest thumb exactly (a
   constant twist offset would be a constant Eq. 14 torque on the simulated thumb).
 
-Left hands use the mirrored frames (INTERFACE.md): positions mirrored through the xz plane give
+Left hands use the mirrored frames (docs/INTERFACE.md): positions mirrored through the xz plane give
 frames R_left = S R_right S with S = diag(1, −1, 1) — x and z keep their meaning (along the bone,
 dorsal), y = z × x is recomputed. `mirror_poses` applies this to a pose array.
 
@@ -146,7 +146,7 @@ def mirror_poses(poses: np.ndarray) -> np.ndarray:
     """Mirror poses (n, 7) through the world xz plane, keeping frames right-handed.
 
     Position y -> -y; rotation R -> S R S, S = diag(1, -1, 1) (x and z axes mirrored, y = z × x).
-    Maps right-hand bone frames onto left-hand ones and back (INTERFACE.md "frames mirrored").
+    Maps right-hand bone frames onto left-hand ones and back (docs/INTERFACE.md "frames mirrored").
     """
     p = np.asarray(poses, dtype=np.float64)
     out = p.copy()

@@ -8,7 +8,7 @@
   palm kx = sim_kx and k_theta = sim_ktheta; phalanxes kx = 0 (paper: "only orientations for the
   phalanxes"). Without a copy (no sim running) only the tracked coupling acts.
 
-Integration: backward Euler with one Newton step (DESIGN.md "One step"), per body about its centre
+Integration: backward Euler with one Newton step (docs/DESIGN.md "The step"), per body about its centre
 of mass (the coupled points of Eq. 14 are the COMs, as in the solver), angular velocity in world
 coordinates, q <- exp(dt w) q:
 

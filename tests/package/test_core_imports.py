@@ -7,7 +7,7 @@ import sys
 import pytest
 
 PACKAGES = ("softhand_sim", "softhand_tracking", "softhand_world")
-# Module names allowed to import rclpy (DESIGN.md: nodes stay thin, the core never imports rclpy).
+# Module names allowed to import rclpy (docs/ARCHITECTURE.md: nodes stay thin, the core never imports rclpy).
 ROS_MODULE_SUFFIXES = ("_node", ".cli")
 ROS_MODULES = ("softhand_sim.ros.common", "softhand_sim.ros.params")
 

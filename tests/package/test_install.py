@@ -1,4 +1,4 @@
-"""The plain install: one venv install gives every console script of INTERFACE.md, and they run."""
+"""The plain install: one venv install gives every console script of docs/INTERFACE.md, and they run."""
 import subprocess
 import sys
 from pathlib import Path

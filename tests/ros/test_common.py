@@ -28,7 +28,7 @@ def test_rate_meter_against_known_periods():
 
 
 def test_message_class_and_topic_table():
-    """Every INTERFACE.md topic type resolves to an rclpy class; a bad name is refused by name."""
+    """Every docs/INTERFACE.md topic type resolves to an rclpy class; a bad name is refused by name."""
     for topic, name in rc.TOPIC_TYPES.items():
         cls = rc.message_class(name)
         assert cls.__name__ == name.split("/")[-1]

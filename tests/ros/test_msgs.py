@@ -52,7 +52,7 @@ def test_pose_array_rejects_bad_shape_and_nan():
 
 
 def test_object_states_round_trip_and_contract():
-    """Object states: names, poses, twists, accels and stamp round-trip; one point, as INTERFACE.md fixes."""
+    """Object states: names, poses, twists, accels and stamp round-trip; one point, as docs/INTERFACE.md fixes."""
     rng = np.random.default_rng(1)
     names = ["ball", "small_box", "mug"]
     poses, tw, acc = _random_poses(rng, 3), rng.normal(size=(3, 6)), rng.normal(size=(3, 6))
@@ -84,7 +84,7 @@ def test_xyz_cloud_round_trip_float32():
 
 
 def test_contacts_cloud_round_trip_all_fields():
-    """Contacts cloud has the 11 INTERFACE.md fields with their types and round-trips each of them."""
+    """Contacts cloud has the 11 docs/INTERFACE.md fields with their types and round-trips each of them."""
     rng = np.random.default_rng(3)
     n = 40
     pts, nrm, frc = rng.normal(size=(n, 3)), rng.normal(size=(n, 3)), rng.normal(size=(n, 3))

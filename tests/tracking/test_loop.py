@@ -62,7 +62,7 @@ def test_step_response_2cm_20deg_no_overshoot_and_settles():
 
 def test_palm_matches_backward_euler_recurrence():
     """The palm's COM follows, to round-off, the independent scalar backward-Euler recurrence of a
-    mass m on spring k with damper c = 2 zeta sqrt(k m) (DESIGN.md's one-Newton-step scheme, exact
+    mass m on spring k with damper c = 2 zeta sqrt(k m) (docs/DESIGN.md's one-Newton-step scheme, exact
     for a linear spring): (m + dt c + dt^2 k) v+ = m v - dt k (x - x_t);  x+ = x + dt v+."""
     cfg = LoopConfig(damping_ratio=0.5)
     bones = IntermediateBones(cfg)

@@ -34,7 +34,7 @@ class RigidSkin:
     """Skin vertices of a HandAsset bound to bones.
 
     bone_of (n,) int: the bone each skin vertex follows; local_points / local_normals (n, 3): the
-    vertex [m] and its outward normal in that bone's frame (bone frames as INTERFACE.md: origin at
+    vertex [m] and its outward normal in that bone's frame (bone frames as docs/INTERFACE.md: origin at
     the proximal joint, x along the bone).
     """
 

@@ -3,7 +3,7 @@
 Rest pose (right hand): palm down (dorsal = +z), fingers straight along +x and fanned in the palm
 plane by `finger_spread_deg` between neighbours, thumb toward +y at its anatomical angle
 (metacarpal 42 deg off the palm axis and 10 deg palmar, pronated so that its nail faces up and
-outward), wrist joint at the origin. Bone frames follow INTERFACE.md: origin at the proximal
+outward), wrist joint at the origin. Bone frames follow docs/INTERFACE.md: origin at the proximal
 joint, +x toward the distal joint, +z dorsal, y = z x x. With +z dorsal, a positive rotation about
 the bone's +y turns +x toward -z: positive flexion curls toward the palm.
 

@@ -1,4 +1,4 @@
-"""Names and orders fixed by the public contract (INTERFACE.md): bones, tracker joints, segments."""
+"""Names and orders fixed by the public contract (docs/INTERFACE.md): bones, tracker joints, segments."""
 
 BONE_NAMES = (
     "palm",

@@ -168,7 +168,7 @@ def skew(v):
 def quat_from_axes(x_axis, z_hint):
     """Quaternion of the frame whose x is `x_axis` and whose z is `z_hint` made orthogonal to x.
 
-    y = z × x (a right-handed frame), as the bone frames of INTERFACE.md are defined. Plain
+    y = z × x (a right-handed frame), as the bone frames of docs/INTERFACE.md are defined. Plain
     numpy (not jitted): used when building frames from tracker joints and hand measures.
     """
     x = np.asarray(x_axis, dtype=np.float64)

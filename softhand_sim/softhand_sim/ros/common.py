@@ -1,4 +1,4 @@
-"""rclpy helpers shared by every softhand node: QoS of INTERFACE.md, topic table, diagnostics,
+"""rclpy helpers shared by every softhand node: QoS of docs/INTERFACE.md, topic table, diagnostics,
 rate/jitter meter, parameter declaration from a schema, command line and a quiet main().
 
 A node file stays thin by using these:
@@ -33,7 +33,7 @@ from softhand_sim.ros.msgs import diagnostic_array, diagnostic_status
 
 # ------------------------------------------------------------------------------------------- QoS
 
-#: Every softhand publisher (INTERFACE.md): reliable, volatile, keep last 10.
+#: Every softhand publisher (docs/INTERFACE.md): reliable, volatile, keep last 10.
 PUB_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
                      reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE)
 #: /hand/skin_mesh publisher and its subscribers: published once, kept for late joiners.
@@ -51,7 +51,7 @@ RECORD_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000,
 
 # ---------------------------------------------------------------------------------------- topics
 
-#: INTERFACE.md topic table: topic -> ROS type name.
+#: docs/INTERFACE.md topic table: topic -> ROS type name.
 TOPIC_TYPES = {
     "/tracker/hand_joints": "geometry_msgs/msg/PoseArray",
     "/hand/intermediate_bones": "geometry_msgs/msg/PoseArray",

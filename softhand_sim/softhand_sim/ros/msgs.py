@@ -1,4 +1,4 @@
-"""ROS 2 message <-> numpy conversions for every softhand topic (INTERFACE.md).
+"""ROS 2 message <-> numpy conversions for every softhand topic (docs/INTERFACE.md).
 
 Message types only: nothing here creates a node, so the sim, tracking and world nodes and the
 tests share one set of conversions. Conventions of docs/ARCHITECTURE.md: SI units, poses
@@ -114,7 +114,7 @@ def pose_array_to_numpy(msg) -> np.ndarray:
 
 def object_states_from_numpy(names: Sequence[str], poses, twists, accels, stamp,
                              frame_id: str = WORLD_FRAME) -> MultiDOFJointTrajectory:
-    """trajectory_msgs/MultiDOFJointTrajectory per INTERFACE.md "Object state messages".
+    """trajectory_msgs/MultiDOFJointTrajectory per docs/INTERFACE.md "Object state messages".
 
     joint_names = object names; exactly one point whose transforms (poses (n, 7) [m, quat xyzw]),
     velocities (twists (n, 6) [m/s, rad/s], world frame) and accelerations (accels (n, 6)
@@ -190,7 +190,7 @@ _FIELD_DTYPES = {
 }
 _DTYPE_FIELDS = {np.dtype(v): k for k, v in _FIELD_DTYPES.items()}
 
-# /hand/contacts layout (INTERFACE.md): 9 float32, object uint32, slip uint8, padded to 4 bytes.
+# /hand/contacts layout (docs/INTERFACE.md): 9 float32, object uint32, slip uint8, padded to 4 bytes.
 CONTACT_DTYPE = np.dtype({
     "names": ["x", "y", "z", "nx", "ny", "nz", "fx", "fy", "fz", "object", "slip"],
     "formats": [np.float32] * 9 + [np.uint32, np.uint8],

@@ -1,6 +1,6 @@
 """A voxel "box hand" with the HandAsset fields, for benchmarks and tests that must not wait for
 (or depend on) the parametric hand builder: palm + 4 fingers + thumb of boxes, 16 bones in the
-INTERFACE.md order, Kuhn-split voxels (conforming tets), capsule samples per Sect. 3.4.
+docs/INTERFACE.md order, Kuhn-split voxels (conforming tets), capsule samples per Sect. 3.4.
 
 Right hand, palm down (dorsal +z), fingers along +x, thumb toward +y, wrist at the origin.
 `box_hand(cell)` with cell [m] the voxel size; `box_hand_with_tets(target)` picks the cell that
@@ -23,7 +23,7 @@ BONE_DENSITY = 1900.0                              # [kg/m^3]
 
 
 def _bones():
-    """(origin, direction, length) for the 16 bones in INTERFACE.md order."""
+    """(origin, direction, length) for the 16 bones in docs/INTERFACE.md order."""
     bones = [((0.0, 0.0, 0.0), (1.0, 0.0, 0.0), 0.09)]
     x, y0, lens = THUMB
     p = np.array([x, y0, 0.0])
