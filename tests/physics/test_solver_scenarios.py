@@ -55,7 +55,7 @@ def test_cantilever_tip_deflection_converges_to_euler_bernoulli():
 def squeeze(nl_k, force=20.0, steps=150):
     """2 cm tissue cube on a clamped base, pressed by a rigid plate coupled to its top nodes."""
     from softhand_sim.physics.model import rigid_asset
-    from solver_fixtures import box_mesh
+    from tests.support.solver_fixtures import box_mesh
     s_ = 0.02
     X, tets = box_mesh((s_, s_, s_), (4, 4, 4))
     top = np.flatnonzero(X[:, 2] > s_ - 1e-9)
