@@ -1,20 +1,22 @@
-"""Parameters of every node: schema (type, range, unit, meaning, source) and a validating loader.
+"""Parameters of every node: the one schema (type, default, range, unit, meaning) and a validating loader.
 
-Default values live in one place, config/softhand.yaml (ROS 2 params-file format, one section
-per node name). This module knows what each key means and which values are allowed; the loader
-refuses unknown keys, wrong types and out-of-range values with a message naming the key and the
-value. The nodes and the plain library both load parameters through `load_params`.
+SCHEMA is the single source of every parameter: each node declares it (ros/params.py), the plain
+library loads it (`load_params`), the solver model reads its sim_node names unchanged
+(physics/model.py), `softhand params` prints it and config/softhand.yaml (ROS 2 params-file
+format, one section per node) is written from it (`softhand params --yaml FILE`; a test fails
+when the two disagree). The loader refuses unknown keys, wrong types and out-of-range values with
+a message naming the key and the value.
 """
 from __future__ import annotations
 
 import math
+from decimal import Decimal
 import re
 from dataclasses import dataclass
 from pathlib import Path
 
 import yaml
 
-from softhand_sim.paths import default_config_file
 
 
 class _Loader(yaml.SafeLoader):
@@ -43,105 +45,145 @@ class ParamError(ValueError):
 @dataclass(frozen=True)
 class Param:
     kind: type                 # float, int, bool, str, list
+    default: object            # the one default of the project (config/softhand.yaml is written from it)
     unit: str                  # SI unit or "-"
-    doc: str                   # meaning and source
+    doc: str                   # meaning and source (the ROS parameter description)
     low: float | None = None   # inclusive lower bound (numbers)
     high: float | None = None  # inclusive upper bound (numbers)
     positive: bool = False     # strictly > 0 (stiffness, rates, masses)
     choices: tuple | None = None
+    size: int | None = None    # exact length (lists)
 
 
 P = Param
 _PAPER = "paper Sect. 5.1"
 
-# Parameters shared by the solver library and sim_node.
+# sim_node: SimRuntime and the solver model (physics/model.py, physics/solver.py) read these
+# names as they are; build_model(asset, {key: value}) takes any of them.
 SIM = {
-    "sim_rate": P(float, "Hz", "full-simulation step rate; dt = 1/sim_rate", 10, 2000, positive=True),
-    "hand_side": P(str, "-", "which hand to simulate", choices=("right", "left")),
-    "mesh": P(str, "-", "tissue resolution: coarse (~850 tets, paper 856) or fine (~8.5k)", choices=("coarse", "fine")),
-    "youngs_modulus": P(float, "Pa", f"tissue Young's modulus ({_PAPER}: 1e5)", positive=True),
-    "poisson_ratio": P(float, "-", f"tissue Poisson ratio ({_PAPER}: 0.33)", 0.0, 0.49),
-    "tissue_density": P(float, "kg/m^3", "soft tissue density (water-like)", positive=True),
-    "nonlinear_w_max": P(float, "J/m^3", f"energy density threshold W_max of Eq. 8 ({_PAPER}: 2500)", positive=True),
-    "nonlinear_k": P(float, "J/m^3", f"nonlinear stiffness k of Eq. 8 ({_PAPER}: 1000); 0 = linear co-rotational", 0.0),
-    "bone_tissue_k_total": P(float, "N/m", f"bone-tissue total coupling stiffness k_total of Eq. 11 ({_PAPER}: 3.2e6)", positive=True),
-    "joint_stiffness": P(float, "N/m", f"skeletal joint stiffness of Eq. 6 ({_PAPER}: 2e5)", positive=True),
-    "joint_limit_stiffness": P(float, "N*m/rad", "stiffness of the joint-limit penalty (not in the paper)", 0.0),
-    "tracking_kx": P(float, "N/m", f"palm linear coupling to the intermediate bones, Eq. 14 ({_PAPER}: 50)", positive=True),
-    "tracking_ktheta": P(float, "N*m/rad", f"angular coupling to the intermediate bones, Eq. 14 ({_PAPER}: 200)", positive=True),
-    "object_kx": P(float, "N/m", f"hand<->engine object linear coupling, Eq. 14 ({_PAPER}: 170)", positive=True),
-    "object_ktheta": P(float, "N*m/rad", f"hand<->engine object angular coupling, Eq. 14 ({_PAPER}: 70)", positive=True),
-    "object_max_omega": P(float, "rad/s", "cap on sqrt(k/m), sqrt(ktheta/I) of the object coupling (same as world_node's)", positive=True),
-    "contact_kn": P(float, "N/m^3", "normal contact stiffness k_n of Eq. 12 per unit vertex area (not in the paper)", positive=True),
-    "contact_kf": P(float, "N/m^3", "tangential (friction) stiffness k_f of Eq. 13 per unit vertex area (not in the paper)", positive=True),
-    "friction": P(float, "-", f"Coulomb coefficient mu for hand contacts when the scene gives none ({_PAPER}: 0.5)", 0.0),
-    "gravity_bones": P(bool, "-", "apply gravity to the bones"),
-    "gravity_tissue": P(bool, "-", "apply gravity to the tissue nodes"),
-    "gravity_objects": P(bool, "-", "apply gravity to the hand-side object instances"),
-    "cg_tolerance": P(float, "-", "relative residual tolerance of PCG (paper: 1e-5)", 1e-12, 1e-1),
-    "cg_max_iterations": P(int, "-", "PCG iteration cap: bounds the cost of a step", 1, 100000),
-    "preconditioner": P(str, "-", "PCG preconditioner: jacobi (the paper's), block_jacobi (3x3 node, 6x6 body blocks) or factor (sparse factorization reused across steps)", choices=("jacobi", "block_jacobi", "factor")),
-    "scene_file": P(str, "-", "scene file (empty: config/scene.yaml)"),
-    "copy_timeout": P(float, "s", "an engine copy older than this decouples its object", positive=True),
-    "extrapolate": P(bool, "-", "extrapolate engine copies with constant acceleration (Sect. 3.7)"),
-    "skin_marker_rate": P(float, "Hz", "rate of /hand/skin_marker", positive=True),
-    "publish_skin_vertices": P(bool, "-", "publish /hand/skin_vertices every step"),
-    "diagnostics_rate": P(float, "Hz", "rate of /diagnostics", positive=True),
+    "sim_rate": P(float, 60.0, "Hz", "full-simulation step rate; dt = 1/sim_rate (the paper reaches 45-65 steps/s)",
+                  10, 2000, positive=True),
+    "hand_side": P(str, "right", "-", "which hand to simulate", choices=("right", "left")),
+    "mesh": P(str, "coarse", "-", "tissue resolution: coarse (~850 tets, paper 856) or fine (~8.5k)",
+              choices=("coarse", "fine")),
+    "youngs_modulus": P(float, 1.0e5, "Pa", f"tissue Young's modulus ({_PAPER}: 1e5)", positive=True),
+    "poisson_ratio": P(float, 0.33, "-", f"tissue Poisson ratio ({_PAPER}: 0.33)", 0.0, 0.49),
+    "tissue_density": P(float, 1000.0, "kg/m^3", "soft tissue density, lumped onto the nodes (water-like; not in the paper)",
+                        positive=True),
+    "nonlinear_w_max": P(float, 2500.0, "J/m^3", f"energy density threshold W_max of Eq. 8 ({_PAPER}: 2500)", positive=True),
+    "nonlinear_k": P(float, 1000.0, "J/m^3", f"nonlinear stiffness k of Eq. 8 ({_PAPER}: 1000); 0 = linear co-rotational", 0.0),
+    "polar_iterations": P(int, 3, "-", "iterations per step of the warm-started polar decomposition giving each tet's rotation",
+                          1, 100),
+    "bone_tissue_k_total": P(float, 3.2e6, "N/m", f"bone-tissue total coupling stiffness k_total of Eq. 11 ({_PAPER}: 3.2e6)",
+                             positive=True),
+    "joint_stiffness": P(float, 2.0e5, "N/m", f"skeletal joint stiffness of Eq. 6 ({_PAPER}: 2e5)", positive=True),
+    "joint_axis_stiffness": P(float, 20.0, "N*m/rad", "stiffness locking the fixed axes of hinge and universal joints "
+                              "(not in the paper: 2e5 N/m x (1 cm)^2)", 0.0),
+    "joint_limit_stiffness": P(float, 2.0, "N*m/rad", "stiffness of the joint-limit penalty; 0 = no limits (not in the paper)",
+                               0.0),
+    "tracking_kx": P(float, 500.0, "N/m", f"palm linear coupling to the intermediate palm, Eq. 14 ({_PAPER}: 50). 10x the "
+                     "paper: the palm carries a held object twice (both ball instances feel gravity); in series with "
+                     "tracking_node's sim_kx 500 that is 250 N/m, 8 mm sag for 2 N", positive=True),
+    "tracking_kx_phalanx": P(float, 0.0, "N/m", "phalanx linear coupling to the intermediate bones, Eq. 14 "
+                             "(paper Sect. 3.6: 0, the joints carry the phalanxes)", 0.0),
+    "tracking_ktheta": P(float, 200.0, "N*m/rad", f"angular coupling of every bone to its intermediate bone, Eq. 14 "
+                         f"({_PAPER}: 200)", positive=True),
+    "object_kx": P(float, 170.0, "N/m", f"hand<->engine object linear coupling, Eq. 14 ({_PAPER}: 170)", positive=True),
+    "object_ktheta": P(float, 70.0, "N*m/rad", f"hand<->engine object angular coupling, Eq. 14 ({_PAPER}: 70)", positive=True),
+    "object_max_omega": P(float, 45.0, "rad/s", "cap on sqrt(k/m), sqrt(ktheta/I) of the object coupling "
+                          "(same as world_node's coupling_max_omega)", positive=True),
+    "contact_kn": P(float, 3.0e7, "N/m^3", "normal contact stiffness k_n of Eq. 12 per unit vertex area (not in the paper)",
+                    positive=True),
+    "contact_kf": P(float, 1.5e7, "N/m^3", "tangential (friction) stiffness k_f of Eq. 13 per unit vertex area "
+                    "(not in the paper); the Coulomb mu of each contact is the scene's friction", positive=True),
+    "gravity": P(list, [0.0, 0.0, -9.81], "m/s^2", "gravity vector of the hand side, world frame "
+                 "(world_node's gravity is its magnitude along -z: keep the two equal)", size=3),
+    "gravity_bones": P(bool, False, "-", "apply gravity to the bones (off: the user's arm carries the hand; with "
+                       "gravity the palm coupling lets it sag)"),
+    "gravity_tissue": P(bool, False, "-", "apply gravity to the tissue nodes (off: same reason; objects keep gravity)"),
+    "gravity_objects": P(bool, True, "-", "apply gravity to the hand-side object instances"),
+    "cg_tolerance": P(float, 1.0e-5, "-", "relative residual tolerance of PCG (paper: 1e-5)", 1e-12, 1e-1),
+    "cg_max_iterations": P(int, 200, "-", "PCG iteration cap: bounds the cost of a step", 1, 100000),
+    "preconditioner": P(str, "factor", "-", "PCG preconditioner: factor (sparse block LDL^T of the system matrix, "
+                        "refreshed over several steps), jacobi (the paper's) or block_jacobi (3x3 node, 6x6 body blocks)",
+                        choices=("factor", "jacobi", "block_jacobi")),
+    "factor_refresh_steps": P(int, 50, "-", "factor preconditioner: a new factorization at least every this many steps "
+                              "(computed in as many slices, one per step)", 1, 100000),
+    "factor_refresh_iterations": P(int, 8, "-", "factor preconditioner: refresh twice as fast after a CG that took "
+                                   "more iterations than this", 0, 100000),
+    "scene_file": P(str, "", "-", "scene file (empty: config/scene.yaml)"),
+    "copy_timeout": P(float, 0.5, "s", "an engine copy older than this decouples its object", positive=True),
+    "extrapolate": P(bool, False, "-", "extrapolate engine copies with constant acceleration (Sect. 3.7): off, measured "
+                     "to throw a held ball once copies arrive >= 50 ms late (a loaded machine); plain copies held it"),
+    "skin_marker_rate": P(float, 10.0, "Hz", "rate of /hand/skin_marker", positive=True),
+    "publish_skin_vertices": P(bool, True, "-", "publish /hand/skin_vertices every step"),
+    "diagnostics_rate": P(float, 1.0, "Hz", "rate of /diagnostics", positive=True),
 }
 
 TRACKING = {
-    "rate": P(float, "Hz", "intermediate-bone loop rate (paper Sect. 5.1: 250)", 10, 2000, positive=True),
-    "hand": P(str, "-", "tracked hand", choices=("right", "left")),
-    "tracked_kx": P(float, "N/m", "coupling of each intermediate bone to its tracked bone, linear (paper: 50)", positive=True),
-    "tracked_ktheta": P(float, "N*m/rad", "coupling to the tracked bone, angular (paper: 200)", positive=True),
-    "sim_kx": P(float, "N/m", "palm coupling to the full-simulation copy, linear (paper: 50; phalanxes 0)", positive=True),
-    "sim_ktheta": P(float, "N*m/rad", "coupling to the full-simulation copy, angular (paper: 200)", positive=True),
-    "damping_ratio": P(float, "-", "critical-damping fraction of each tracked coupling (0: the paper's plain springs overshoot 67%)", 0.0, 5.0),
-    "tracker_timeout": P(float, "s", "hold the last target when no valid frame arrived for this long", positive=True),
-    "sim_timeout": P(float, "s", "forget the full-simulation copy when /hand/bones is older than this", positive=True),
-    "tracker_to_world": P(list, "m, quaternion", "tracker->world transform [px py pz qx qy qz qw]"),
-    "min_bone_length": P(float, "m", "shorter tracked bones reject the frame", 0.0),
-    "max_bone_length": P(float, "m", "longer tracked bones reject the frame", positive=True),
-    "diagnostics_rate": P(float, "Hz", "rate of /diagnostics", positive=True),
+    "rate": P(float, 250.0, "Hz", "intermediate-bone loop rate (paper Sect. 5.1: 250)", 10, 2000, positive=True),
+    "hand": P(str, "right", "-", "tracked hand", choices=("right", "left")),
+    "tracked_kx": P(float, 500.0, "N/m", "coupling of each intermediate bone to its tracked bone, linear "
+                    "(paper: 50; 500 as sim_node's tracking_kx)", positive=True),
+    "tracked_ktheta": P(float, 200.0, "N*m/rad", "coupling to the tracked bone, angular (paper: 200)", positive=True),
+    "sim_kx": P(float, 500.0, "N/m", "palm coupling to the full-simulation copy, linear (paper: 50; phalanxes 0)",
+                positive=True),
+    "sim_ktheta": P(float, 200.0, "N*m/rad", "coupling to the full-simulation copy, angular (paper: 200)", positive=True),
+    "damping_ratio": P(float, 1.0, "-", "critical-damping fraction of each tracked coupling "
+                       "(0: the paper's plain springs overshoot 67%)", 0.0, 5.0),
+    "tracker_timeout": P(float, 0.1, "s", "hold the last target when no valid frame arrived for this long", positive=True),
+    "sim_timeout": P(float, 0.5, "s", "forget the full-simulation copy when /hand/bones is older than this", positive=True),
+    "tracker_to_world": P(list, [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0], "m, quaternion",
+                          "tracker->world transform [px py pz qx qy qz qw]", size=7),
+    "min_bone_length": P(float, 0.005, "m", "shorter tracked bones reject the frame", 0.0),
+    "max_bone_length": P(float, 0.15, "m", "longer tracked bones reject the frame", positive=True),
+    "diagnostics_rate": P(float, 1.0, "Hz", "rate of /diagnostics", positive=True),
 }
 
 WORLD = {
-    "engine_rate": P(float, "Hz", "pybullet step rate (paper: 60-120)", 60, 120),
-    "scene_file": P(str, "-", "scene file (empty: config/scene.yaml)"),
-    "coupling_kx": P(float, "N/m", "engine<->hand object coupling, linear, Eq. 14 (paper: 170)", positive=True),
-    "coupling_ktheta": P(float, "N*m/rad", "engine<->hand object coupling, angular, Eq. 14 (paper: 70)", positive=True),
-    "coupling_damping": P(float, "-", "damping ratio of the engine-side coupling spring (0: the paper's plain spring)", 0.0, 2.0),
-    "coupling_mode": P(str, "-", "implicit: backward-Euler coupling force (stable); explicit: the paper's plain spring at t",
-                       choices=("implicit", "explicit")),
-    "coupling_max_omega": P(float, "rad/s", "cap on sqrt(k/m) and sqrt(ktheta/I) of the coupling: keeps the copy exchange stable "
-                            "for light objects (the paper's 70 N*m/rad on a 4 cm ball is ~1200 rad/s)", positive=True),
-    "copy_timeout": P(float, "s", "a hand copy older than this decouples its object", positive=True),
-    "extrapolate": P(bool, "-", "extrapolate hand copies with constant acceleration (Sect. 3.7)"),
-    "gravity": P(float, "m/s^2", "gravity along -z", 0.0),
-    "marker_rate": P(float, "Hz", "rate of /world/markers", positive=True),
-    "diagnostics_rate": P(float, "Hz", "rate of /diagnostics", positive=True),
+    "engine_rate": P(float, 120.0, "Hz", "pybullet step rate (paper: 60-120)", 60, 120),
+    "scene_file": P(str, "", "-", "scene file (empty: config/scene.yaml)"),
+    "coupling_kx": P(float, 170.0, "N/m", "engine<->hand object coupling, linear, Eq. 14 (paper: 170)", positive=True),
+    "coupling_ktheta": P(float, 70.0, "N*m/rad", "engine<->hand object coupling, angular, Eq. 14 (paper: 70)",
+                         positive=True),
+    "coupling_damping": P(float, 0.0, "-", "damping ratio of the engine-side coupling spring (0: the paper's plain spring)",
+                          0.0, 2.0),
+    "coupling_mode": P(str, "implicit", "-", "implicit: backward-Euler coupling force (stable); explicit: the paper's "
+                       "plain spring at t", choices=("implicit", "explicit")),
+    "coupling_max_omega": P(float, 45.0, "rad/s", "cap on sqrt(k/m) and sqrt(ktheta/I) of the coupling: keeps the copy "
+                            "exchange stable for light objects (the paper's 70 N*m/rad on a 4 cm ball is ~1200 rad/s)",
+                            positive=True),
+    "copy_timeout": P(float, 0.5, "s", "a hand copy older than this decouples its object", positive=True),
+    "extrapolate": P(bool, False, "-", "extrapolate hand copies with constant acceleration (Sect. 3.7): off, "
+                     "as sim_node's"),
+    "gravity": P(float, 9.81, "m/s^2", "gravity along -z", 0.0),
+    "marker_rate": P(float, 10.0, "Hz", "rate of /world/markers", positive=True),
+    "diagnostics_rate": P(float, 1.0, "Hz", "rate of /diagnostics", positive=True),
 }
 
 PLAY = {
-    "bag": P(str, "-", "tracker rosbag2 directory (mcap or sqlite3) to replay"),
-    "rate": P(float, "-", "playback speed factor (1 = recorded timing)", positive=True),
-    "loop": P(bool, "-", "start again at the end"),
-    "start": P(float, "s", "skip this much of the bag", 0.0),
-    "topic": P(str, "-", "tracker topic in the bag"),
-    "publish_clock": P(bool, "-", "publish /clock with the bag time"),
-    "clock_rate": P(float, "Hz", "/clock ticks per second between messages (0: only with messages)", 0.0, 1e4),
-    "wait_subscribers": P(int, "-", "wait until this many subscribers match the topic before playing", 0, 1000),
-    "wait_timeout": P(float, "s", "give up waiting for subscribers after this long", 0.0),
+    "bag": P(str, "", "-", "tracker rosbag2 directory (mcap or sqlite3) to replay"),
+    "rate": P(float, 1.0, "-", "playback speed factor (1 = recorded timing)", positive=True),
+    "loop": P(bool, False, "-", "start again at the end"),
+    "start": P(float, 0.0, "s", "skip this much of the bag", 0.0),
+    "topic": P(str, "/tracker/hand_joints", "-", "tracker topic in the bag"),
+    "publish_clock": P(bool, True, "-", "publish /clock with the bag time"),
+    "clock_rate": P(float, 250.0, "Hz", "/clock ticks per second between messages (0: only with messages)", 0.0, 1e4),
+    "wait_subscribers": P(int, 0, "-", "wait until this many subscribers match the topic before playing "
+                          "(the demo uses 1)", 0, 1000),
+    "wait_timeout": P(float, 30.0, "s", "give up waiting for subscribers after this long", 0.0),
 }
 
 RECORD = {
-    "output": P(str, "-", "rosbag2 directory to create (empty: runs/<stamp>/bag)"),
-    "topics": P(list, "-", "topics to record (empty: every softhand topic but /hand/skin_vertices)"),
-    "record_skin_vertices": P(bool, "-", "also record /hand/skin_vertices (large)"),
-    "progress_period": P(float, "s", "how often to log messages/MB written", 0.1, 3600.0),
-    "flush_period": P(float, "s", "write the pending mcap chunk this often (bounds what a SIGKILL loses)", 0.05, 3600.0),
-    "discovery_period": P(float, "s", "look for newly published wanted topics this often", 0.01, 60.0),
-    "stamp_source": P(str, "-", "bag timestamp of each message", choices=("receive", "header")),
+    "output": P(str, "", "-", "rosbag2 directory to create (empty: runs/<stamp>/bag)"),
+    # [""], not []: ROS cannot type an empty list; empty entries are ignored
+    "topics": P(list, [""], "-", "topics to record (empty: every softhand topic but /hand/skin_vertices)"),
+    "record_skin_vertices": P(bool, False, "-", "also record /hand/skin_vertices (large)"),
+    "progress_period": P(float, 5.0, "s", "how often to log messages/MB written", 0.1, 3600.0),
+    "flush_period": P(float, 1.0, "s", "write the pending mcap chunk this often (bounds what a SIGKILL loses)",
+                      0.05, 3600.0),
+    "discovery_period": P(float, 0.2, "s", "look for newly published wanted topics this often", 0.01, 60.0),
+    "stamp_source": P(str, "receive", "-", "bag timestamp of each message", choices=("receive", "header")),
 }
 
 SCHEMA = {
@@ -179,6 +221,8 @@ def check_value(node: str, key: str, value, schema=None):
         if not isinstance(value, (list, tuple)):
             raise ParamError(f"{where} must be a list, got {value!r}")
         value = list(value)
+        if p.size is not None and len(value) != p.size:
+            raise ParamError(f"{where} must be a list of {p.size} values [{p.unit}], got {value!r}")
     if p.kind in (int, float):
         if p.positive and value <= 0:
             raise ParamError(f"{where} must be > 0 [{p.unit}], got {value!r}")
@@ -210,15 +254,74 @@ def read_params_file(path) -> dict:
 
 
 def defaults(node: str) -> dict:
-    """The validated default parameters of `node` from the project's config/softhand.yaml."""
-    path = default_config_file("softhand.yaml")
-    section = read_params_file(path).get(node)
-    if section is None:
-        raise ParamError(f"{path} has no section for node {node!r}")
-    missing = sorted(set(SCHEMA[node]) - set(section))
-    if missing:
-        raise ParamError(f"{path}: node {node!r} lacks default(s) for {missing}")
-    return {k: check_value(node, k, v) for k, v in section.items()}
+    """The default parameters of `node` (fresh copies: callers may change lists)."""
+    if node not in SCHEMA:
+        raise ParamError(f"unknown node {node!r} (known: {', '.join(SCHEMA)})")
+    return {k: list(p.default) if p.kind is list else p.default for k, p in SCHEMA[node].items()}
+
+
+def descriptions(node: str) -> dict:
+    """{key: (description, (low, high))} for ROS parameter descriptors: the meaning with its unit,
+    and the inclusive numeric range (None where a side is open or the key is not a number).
+
+    `positive` keys (> 0) report low None: a ROS range is inclusive; check_value enforces them.
+    """
+    out = {}
+    for key, p in SCHEMA[node].items():
+        text = f"{p.doc} [{p.unit}]"
+        if p.choices is not None:
+            text += f"; one of {', '.join(p.choices)}"
+        out[key] = (text, (p.low, p.high) if p.kind in (int, float) else (None, None))
+    return out
+
+
+def _yaml_value(value) -> str:
+    """One value as the params file writes it (floats always with a point or exponent: rcl types them)."""
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, float):
+        if value == 0.0 or 1e-3 <= abs(value) < 1e5 or not math.isfinite(value):
+            return repr(value)
+        mant, exp = format(Decimal(repr(value)).normalize(), "e").split("e")  # shortest digits
+        return f"{mant if '.' in mant else mant + '.0'}e{int(exp)}"
+    if isinstance(value, int):
+        return str(value)
+    if isinstance(value, str):
+        return '""' if value == "" else value if re.fullmatch(r"[A-Za-z_/][A-Za-z0-9_/.-]*", value) else repr(value)
+    return "[" + ", ".join(_yaml_value(v) for v in value) + "]"
+
+
+_HEADER = """\
+# softhand parameters, ROS 2 params-file format: one section per node name.
+# GENERATED from the schema in softhand_sim/softhand_sim/params.py (`softhand params --yaml FILE`);
+# edit the schema, not this file (tests/config/test_params.py fails when the two disagree).
+# Units are SI; "paper" = the paper's Sect. 5.1 values. Every key is checked at start: unknown
+# keys, wrong types and out-of-range values are refused with a message naming the key and the
+# value. Use with
+#   ros2 run softhand_sim sim_node --ros-args --params-file config/softhand.yaml
+# or any copy of it (only the keys you change are needed in your own file).
+"""
+
+
+def params_yaml(width: int = 110) -> str:
+    """The text of config/softhand.yaml: every node's defaults, each with its unit and meaning."""
+    lines = [_HEADER.rstrip("\n")]
+    for node, schema in SCHEMA.items():
+        lines += ["", f"{node}:", "  ros__parameters:"]
+        for key, p in schema.items():
+            head = f"    {key}: {_yaml_value(p.default)}"
+            words = ((f"[{p.unit}] " if p.unit != "-" else "") + (" | ".join(p.choices) + ": " if p.choices else "")
+                     + p.doc)
+            col = max(len(head) + 1, 34)
+            comment = []
+            for word in words.split():
+                if comment and col + 2 + len(comment[-1]) + 1 + len(word) <= width:
+                    comment[-1] += " " + word
+                else:
+                    comment.append(word)
+            lines.append(f"{head:{col}s}# {comment[0]}")
+            lines += [f"{'':{col}s}# {c}" for c in comment[1:]]
+    return "\n".join(lines) + "\n"
 
 
 def load_params(node: str, params_file=None, overrides=None) -> dict:

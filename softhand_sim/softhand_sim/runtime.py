@@ -24,27 +24,6 @@ from softhand_sim.scene import load_scene
 from softhand_sim.physics.solver import Solver
 from softhand_sim.physics.state import State
 
-# sim_node parameter -> solver parameter (model.DEFAULT_PARAMS), where the names differ.
-_SOLVER_KEYS = {
-    "youngs_modulus": "youngs_modulus",
-    "poisson_ratio": "poisson_ratio",
-    "tissue_density": "tissue_density",
-    "nonlinear_w_max": "nonlinear_w_max",
-    "nonlinear_k": "nonlinear_k",
-    "bone_tissue_k_total": "bone_tissue_k_total",
-    "joint_stiffness": "joint_stiffness",
-    "joint_limit_stiffness": "joint_limit_stiffness",
-    "tracking_kx": "bone_target_kx_palm",
-    "tracking_ktheta": "bone_target_ktheta",
-    "object_kx": "object_target_kx",
-    "object_ktheta": "object_target_ktheta",
-    "gravity_bones": "gravity_bones",
-    "gravity_tissue": "gravity_tissue",
-    "gravity_objects": "gravity_objects",
-    "cg_tolerance": "cg_tolerance",
-    "cg_max_iterations": "cg_max_iterations",
-    "preconditioner": "preconditioner",
-}
 # Divergence guard (robustness): a step is rejected when its state is not finite, when the
 # kinetic energy jumps above this bound [J] (a 0.4 kg hand at 70 m/s: far beyond the ~24 m/s a 1 m
 # teleport reaches with the 500 N/m palm coupling), or when CG
@@ -52,10 +31,6 @@ _SOLVER_KEYS = {
 GUARD_MAX_KINETIC_ENERGY = 1000.0
 GUARD_CAP_RESIDUAL_FACTOR = 1e3
 DISPLAY_TRIANGLES = 3000  # /hand/skin_marker: a decimated skin keeps 10 Hz markers light
-
-
-def solver_params(params):
-    return {solver_key: params[key] for key, solver_key in _SOLVER_KEYS.items()}
 
 
 @dataclass
@@ -89,7 +64,7 @@ class SimRuntime:
                                                                         resolution=params["mesh"])
         self.objects = list(self.scene.dynamic_objects)
         self.object_names = [o.name for o in self.objects]
-        self.model = build_model(self.asset, solver_params(params), self.objects)
+        self.model = build_model(self.asset, params, self.objects)
         self.solver = Solver(self.model)
         self.contacts = contact_mod.attach(self.solver, self.scene, self.asset, kn=params["contact_kn"],
                                            kf=params["contact_kf"])

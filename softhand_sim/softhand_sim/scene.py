@@ -7,6 +7,10 @@ Shapes and their dimensions (SI units):
     cylinder radius, length (along the object's z)
     mesh     file (watertight triangle mesh, relative to the scene file), scale (default 1)
 Inertia is computed from the shape and the mass, about the centre of mass, in the object frame.
+
+Friction lives here only: each object's and the ground's Coulomb `friction` (DEFAULT_FRICTION when
+the entry has none) is what both the hand side (contact) and the engine (pybullet) use, so the two
+cannot disagree; no node parameter overrides it.
 """
 from __future__ import annotations
 
@@ -28,6 +32,8 @@ _REQUIRED_DIMS = {
     "cylinder": ("radius", "length"),
     "mesh": ("file",),
 }
+DEFAULT_FRICTION = 0.5  # [-] Coulomb mu of an object or ground without `friction` (paper Sect. 5.1)
+DEFAULT_MASS = 0.1      # [kg] of a dynamic object without `mass`
 _OBJECT_KEYS = {"name", "shape", "radius", "size", "length", "file", "scale", "mass", "friction",
                 "position", "orientation", "static"}
 
@@ -161,8 +167,8 @@ def _parse_object(raw, base_dir):
         mesh.apply_scale(dims["scale"])
         if not mesh.is_watertight:
             raise SceneError(f"object {name!r}: mesh {mesh_path} is not watertight")
-    mass = 0.0 if static else _number(name, "mass", raw.get("mass", 0.1), positive=True)
-    friction = _number(name, "friction", raw.get("friction", 0.5), nonneg=True)
+    mass = 0.0 if static else _number(name, "mass", raw.get("mass", DEFAULT_MASS), positive=True)
+    friction = _number(name, "friction", raw.get("friction", DEFAULT_FRICTION), nonneg=True)
     position = _vector(name, "position", raw.get("position", [0.0, 0.0, 0.0]), 3)
     orientation = _vector(name, "orientation", raw.get("orientation", [0.0, 0.0, 0.0, 1.0]), 4)
     norm = np.linalg.norm(orientation)
@@ -189,7 +195,7 @@ def load_scene(path=None) -> Scene:
         raise SceneError(f"scene file {path}: unknown top-level key(s) {unknown}")
     ground = raw.get("ground") or {}
     ground_height = _number("ground", "height", ground.get("height", 0.0))
-    ground_friction = _number("ground", "friction", ground.get("friction", 0.5), nonneg=True)
+    ground_friction = _number("ground", "friction", ground.get("friction", DEFAULT_FRICTION), nonneg=True)
     objects = tuple(_parse_object(o, path.parent) for o in (raw.get("objects") or []))
     names = [o.name for o in objects]
     dup = sorted({n for n in names if names.count(n) > 1})

@@ -1,16 +1,68 @@
-"""Parameter files: defaults complete and valid, bad values refused with the key and value named."""
+"""Parameters: one schema (params.SCHEMA) whose defaults are valid, which config/softhand.yaml and
+`softhand params` reproduce and the solver model reads by its own names; bad values refused with
+the key and value named."""
+import subprocess
+import sys
+from pathlib import Path
+
 import pytest
 
-from softhand_sim.params import SCHEMA, ParamError, defaults, load_params, read_params_file
-from softhand_sim.paths import default_config_file
+from softhand_sim.params import (SCHEMA, ParamError, check_value, defaults, descriptions, load_params,
+                                 params_yaml, read_params_file)
+from softhand_sim.paths import REPO_ROOT
+
+YAML = REPO_ROOT / "config" / "softhand.yaml"
+VENV_BIN = Path(sys.executable).parent
 
 
 @pytest.mark.parametrize("node", sorted(SCHEMA))
-def test_defaults_cover_schema(node):
-    """config/softhand.yaml gives a valid default for every key of every node, and no other key."""
-    section = read_params_file(default_config_file("softhand.yaml"))[node]
+def test_schema_defaults_are_valid(node):
+    """Every schema default passes its own check unchanged (type, range, choices, list length)."""
+    for key, value in defaults(node).items():
+        assert check_value(node, key, value) == value, key
+
+
+@pytest.mark.parametrize("node", sorted(SCHEMA))
+def test_yaml_has_exactly_the_schema_defaults(node):
+    """config/softhand.yaml, read as ROS reads a params file, gives each key of the schema its
+    default (same value, same type) and no other key."""
+    section = read_params_file(YAML)[node]
     assert set(section) == set(SCHEMA[node])
-    assert set(defaults(node)) == set(SCHEMA[node])
+    for key, value in section.items():
+        expected = defaults(node)[key]
+        assert (type(value), value) == (type(expected), expected), f"{node}.{key}: yaml {value!r}, schema {expected!r}"
+
+
+def test_yaml_is_generated_from_schema():
+    """The file is byte for byte what `softhand params --yaml` writes (comments too: units and
+    meanings come from the schema). Regenerate with `softhand params --yaml config/softhand.yaml`."""
+    assert YAML.read_text() == params_yaml(), "config/softhand.yaml is stale: run `softhand params --yaml config/softhand.yaml`"
+
+
+def test_params_command_writes_the_yaml(tmp_path):
+    """`softhand params --yaml FILE` (the installed console script) writes the params file, which
+    loads back to the defaults; `softhand params sim_node` lists every key with its unit."""
+    out = tmp_path / "softhand.yaml"
+    subprocess.run([str(VENV_BIN / "softhand"), "params", "--yaml", str(out)], check=True, timeout=60)
+    assert out.read_text() == params_yaml()
+    for node in SCHEMA:
+        assert load_params(node, params_file=out) == defaults(node)
+    text = subprocess.run([str(VENV_BIN / "softhand"), "params", "sim_node"], check=True, timeout=60,
+                          capture_output=True, text=True).stdout
+    for key, p in SCHEMA["sim_node"].items():
+        line = next(ln for ln in text.splitlines() if ln.split()[:1] == [key])
+        assert f"[{p.unit}]" in line and p.doc in line
+
+
+def test_descriptions_carry_meaning_unit_and_range():
+    """descriptions(node): per key a text with the meaning and unit, and the inclusive range."""
+    d = descriptions("sim_node")
+    assert set(d) == set(SCHEMA["sim_node"])
+    text, (low, high) = d["poisson_ratio"]
+    assert "Poisson" in text and "[-]" in text and (low, high) == (0.0, 0.49)
+    text, (low, high) = d["sim_rate"]
+    assert "[Hz]" in text and (low, high) == (10, 2000)
+    assert "jacobi" in d["preconditioner"][0] and d["preconditioner"][1] == (None, None)
 
 
 def test_paper_defaults():
@@ -40,6 +92,8 @@ def test_paper_defaults():
         ("preconditioner", "magic", ["preconditioner", "magic", "jacobi"]),
         ("gravity_bones", "yes", ["gravity_bones", "true or false"]),
         ("sim_rate", float("nan"), ["sim_rate", "finite"]),
+        ("gravity", [0.0, -9.81], ["gravity", "3 values", "-9.81"]),
+        ("friction", 0.5, ["unknown parameter", "friction"]),
     ],
 )
 def test_bad_values_refused(key, value, words):
@@ -62,3 +116,21 @@ def test_user_params_file(tmp_path):
         load_params("world_node", params_file=bad)
     with pytest.raises(ParamError, match="not found"):
         load_params("world_node", params_file=tmp_path / "missing.yaml")
+
+
+# where each node's code lives (the node, its library and the offline pipeline that mirrors it)
+_READERS = {"sim_node": ["softhand_sim/softhand_sim"], "tracking_node": ["softhand_tracking/softhand_tracking"],
+            "world_node": ["softhand_world/softhand_world"], "play_node": ["softhand_tracking/softhand_tracking"],
+            "record_node": ["softhand_sim/softhand_sim"]}
+
+
+@pytest.mark.parametrize("node", sorted(SCHEMA))
+def test_every_parameter_is_read(node):
+    """Each schema key is looked up by name (`...["key"]`) somewhere in its node's code besides
+    params.py: a parameter nobody reads is a setting that silently does nothing."""
+    import re
+    schema_file = REPO_ROOT / "softhand_sim" / "softhand_sim" / "params.py"
+    sources = [f for d in _READERS[node] for f in (REPO_ROOT / d).rglob("*.py") if f != schema_file]
+    text = "\n".join(f.read_text() for f in sources)
+    unread = [k for k in SCHEMA[node] if not re.search(rf"\[[\"']{re.escape(k)}[\"']\]", text)]
+    assert not unread, f"{node}: nobody reads {unread}"

@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from softhand_sim.scene import SceneError, load_scene, shape_inertia
+from softhand_sim.scene import DEFAULT_FRICTION, SceneError, load_scene, shape_inertia
 
 
 def test_default_scene():
@@ -22,6 +22,18 @@ def test_default_scene():
         half = {"sphere": o.dims.get("radius"), "box": o.dims.get("size", (0, 0, 0))[2] / 2,
                 "cylinder": o.dims.get("length", 0) / 2}[o.shape]
         assert abs(o.pose[2] - half - top) < 1e-6, o.name
+
+
+def test_friction_is_the_scenes(tmp_path):
+    """Each object's and the ground's Coulomb mu is its scene entry, DEFAULT_FRICTION where the
+    entry has none (no node parameter overrides it: hand and engine read the same file)."""
+    path = tmp_path / "scene.yaml"
+    path.write_text("ground: {height: 0.0}\nobjects:\n"
+                    "  - {name: a, shape: sphere, radius: 0.02, mass: 0.1}\n"
+                    "  - {name: b, shape: sphere, radius: 0.02, mass: 0.1, friction: 0.8}\n")
+    scene = load_scene(path)
+    assert scene.ground_friction == DEFAULT_FRICTION == 0.5
+    assert scene.object("a").friction == DEFAULT_FRICTION and scene.object("b").friction == 0.8
 
 
 def test_inertia_against_formulae():

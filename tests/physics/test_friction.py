@@ -20,7 +20,7 @@ G = 9.81
 
 def _block(tan_theta, mu=MU):
     model = build_model(box_asset((0.04, 0.04, 0.02), (2, 2, 1)),
-                        {"cg_tolerance": 1e-8, "cg_max_iterations": 500})
+                        {"cg_tolerance": 1e-8, "cg_max_iterations": 500, "gravity_tissue": True})
     solver = Solver(model)
     theta = np.arctan(tan_theta)
     solver.gravity[:] = G * np.array([np.sin(theta), 0.0, -np.cos(theta)])

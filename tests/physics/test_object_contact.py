@@ -25,7 +25,8 @@ def test_block_between_static_table_and_dynamic_ball():
     scene = Scene(0.0, 0.5, (table, ball))
     asset = box_asset((0.04, 0.04, 0.02), (4, 4, 2))
     asset.tet_nodes = asset.tet_nodes + np.array([0.0, 0.0, 0.10])
-    model = build_model(asset, {"cg_tolerance": 1e-8, "cg_max_iterations": 500}, objects=[ball])
+    model = build_model(asset, {"cg_tolerance": 1e-8, "cg_max_iterations": 500, "gravity_tissue": True},
+                        objects=[ball])
     solver = Solver(model)
     # no pull toward an engine copy, only keep the ball from rolling off the block's apex
     solver.set_object_targets(np.array([ball.pose]), kx=0.0, ktheta=70.0)

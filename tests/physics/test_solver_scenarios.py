@@ -10,6 +10,7 @@ from softhand_sim.physics.rotations import quat_to_matrix, relative_rotvec
 from softhand_sim.physics.solver import Solver
 
 E_YOUNG = 1e5
+UNDER_GRAVITY = {"gravity_bones": True, "gravity_tissue": True}  # sim_node's defaults leave the hand weightless
 
 
 class ConstantForce:
@@ -54,7 +55,7 @@ def test_cantilever_tip_deflection_converges_to_euler_bernoulli():
 def squeeze(nl_k, force=20.0, steps=150):
     """2 cm tissue cube on a clamped base, pressed by a rigid plate coupled to its top nodes."""
     from softhand_sim.physics.model import rigid_asset
-    from solver_fixtures import box_mesh
+    from tests.support.solver_fixtures import box_mesh
     s_ = 0.02
     X, tets = box_mesh((s_, s_, s_), (4, 4, 4))
     top = np.flatnonzero(X[:, 2] > s_ - 1e-9)
@@ -67,8 +68,10 @@ def squeeze(nl_k, force=20.0, steps=150):
                     sample_tet=node_tet[top], sample_bone=np.zeros(len(top), np.int32),
                     sample_count=np.ones(len(top), np.int32), sample_local=X[top] - plate[0, :3],
                     sample_bary=bary, bone_sample_total=np.array([len(top)]))
-    m = build_model(a, {"nonlinear_k": nl_k, "bone_target_kx_palm": 0.0, "bone_target_ktheta": 0.0,
-                        "gravity_tissue": False, "gravity_bones": False, "bone_tissue_k_total": 1e6})
+    m = build_model(a, {"nonlinear_k": nl_k, "gravity_tissue": False, "gravity_bones": False,
+                        "bone_tissue_k_total": 1e6})
+    m.body_target_kx[:] = 0.0  # the plate is free: only the dead load and the tissue act on it
+    m.body_target_ktheta[:] = 0.0
     m.node_mass[X[:, 2] < 1e-9] = 1e12
     sol = Solver(m)
     sol.terms.append(ConstantForce([m.body_dof0 + 2], [-force]))
@@ -112,7 +115,7 @@ def coarse_hand():
 def test_joint_gaps_below_1mm_under_gravity_and_fingertip_load(coarse_hand):
     """With the paper's joint stiffness (2e5 N/m), the hand under gravity with a 5 N load on the
     index fingertip keeps every joint gap below 1 mm."""
-    m = build_model(coarse_hand)
+    m = build_model(coarse_hand, UNDER_GRAVITY)
     sol = Solver(m)
     sol.terms.append(ConstantForce([m.body_dof0 + 6 * 6 + 2], [-5.0]))  # index_distal, down
     s = m.initial_state()
@@ -160,11 +163,11 @@ def test_bones_track_random_targets_for_10000_steps(coarse_hand):
 
 def test_cg_respects_cap_and_flags_it(coarse_hand):
     """CG never exceeds cg_max_iterations and the step flags when it stopped there."""
-    m = build_model(coarse_hand, {"preconditioner": "jacobi", "cg_max_iterations": 5})
+    m = build_model(coarse_hand, {**UNDER_GRAVITY, "preconditioner": "jacobi", "cg_max_iterations": 5})
     sol = Solver(m)
     s = m.initial_state()
     st = sol.step(s, 0.01)
     assert st.cg_iters == 5 and st.hit_cap
-    m2 = build_model(coarse_hand, {"preconditioner": "jacobi", "cg_max_iterations": 5000})
+    m2 = build_model(coarse_hand, {**UNDER_GRAVITY, "preconditioner": "jacobi", "cg_max_iterations": 5000})
     st2 = Solver(m2).step(m2.initial_state(), 0.01)
     assert not st2.hit_cap and st2.residual <= 1e-5 and st2.cg_iters <= 5000

@@ -13,7 +13,7 @@ SUBCOMMANDS = {
                                   "writes runs/<stamp>/ (bag, summary.json, preview)"),
     "bench": ("softhand_sim.commands.bench", "solver benchmark (single thread): steps/s median and p99, setup/solve split"),
     "hand": ("softhand_sim.commands.hand", "build the parametric hand model and render it to a PNG"),
-    "params": ("softhand_sim.commands.params", "print every node parameter with its default, unit and meaning"),
+    "params": ("softhand_sim.commands.params", "print every node parameter with its default, range, unit and meaning; --yaml writes the params file"),
     "offline": ("softhand_sim.commands.offline", "run the whole pipeline over a bag without ROS, deterministically; "
                                                  "prints the ball's lift, hold and fall"),
 }

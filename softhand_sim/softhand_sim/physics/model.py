@@ -20,55 +20,22 @@ import numpy as np
 from softhand_sim.physics.energies import tissue, joints
 from softhand_sim.physics.energies.assembly import build_pattern, stencil_slots
 from softhand_sim.physics.rotations import quat_to_matrix
-
-DEFAULT_PARAMS = {
-    # tissue (Sect. 3.3, 5.1)
-    "youngs_modulus": 1.0e5,          # [Pa]
-    "poisson_ratio": 0.33,            # [-]
-    "tissue_density": 1100.0,         # [kg/m^3] lumped onto nodes (not given by the paper)
-    "nonlinear_w_max": 2500.0,        # [J/m^3] Eq. 8 threshold; paper 2500
-    "nonlinear_k": 1000.0,            # [J/m^3] Eq. 8 stiffness; paper 1000; 0 = linear tissue
-    "polar_iterations": 3,            # per step, warm-started rotation extraction
-    # couplings
-    "bone_tissue_k_total": 3.2e6,     # [N/m] Eq. 11; paper 3.2e6
-    "joint_stiffness": 2.0e5,         # [N/m] Eq. 6; paper 2e5
-    "joint_axis_stiffness": 20.0,     # [N m/rad] hinge/universal locked axes (2e5 N/m x (1 cm)^2)
-    "joint_limit_stiffness": 20.0,    # [N m/rad] joint limits; 0 = no limits
-    "bone_target_kx_palm": 50.0,      # [N/m] Eq. 14 palm; paper 50
-    "bone_target_kx_phalanx": 0.0,    # [N/m] Eq. 14 phalanxes; paper 0 (Sect. 3.6)
-    "bone_target_ktheta": 200.0,      # [N m/rad] Eq. 14; paper 200
-    "object_target_kx": 170.0,        # [N/m] Eq. 14 hand-side object to engine copy; paper 170
-    "object_target_ktheta": 70.0,     # [N m/rad]; paper 70
-    # gravity
-    "gravity": (0.0, 0.0, -9.81),     # [m/s^2]
-    "gravity_tissue": True,
-    "gravity_bones": True,
-    "gravity_objects": True,
-    # solver (Sect. 3.1, 5.1)
-    "cg_tolerance": 1e-5,             # relative residual ||r|| <= tol ||b||
-    "cg_max_iterations": 200,         # cap that bounds the cost per step
-    "preconditioner": "factor",       # "factor" (sparse LU reused), "block_jacobi", "jacobi" (paper)
-    "factor_refresh_steps": 50,       # refresh the LU at least every this many steps
-    "factor_refresh_iterations": 8,   # ... or when the last CG took more iterations than this
-}
+from softhand_sim.params import load_params
 
 
-def merged_params(params):
-    """DEFAULT_PARAMS updated with params; unknown keys are an error naming the key."""
-    out = dict(DEFAULT_PARAMS)
-    for k, v in (params or {}).items():
-        if k not in DEFAULT_PARAMS:
-            raise KeyError(f"unknown solver parameter {k!r}; known: {sorted(DEFAULT_PARAMS)}")
-        out[k] = v
-    if out["preconditioner"] not in ("jacobi", "block_jacobi", "factor"):
-        raise ValueError(f"preconditioner={out['preconditioner']!r}: expected 'factor', 'block_jacobi' or 'jacobi'")
-    return out
+def model_params(params=None):
+    """sim_node's parameters (params.SIM, the one schema) updated with `params`, every value checked.
+
+    build_model and Solver read the schema's names unchanged; an unknown key or a bad value raises
+    params.ParamError naming it.
+    """
+    return load_params("sim_node", overrides=params)
 
 
 @dataclass
 class Model:
     """Static solver data. Arrays: float64 / int32, shapes in comments."""
-    params: dict
+    params: dict                   # sim_node parameters by their schema names (model_params)
     node_rest: np.ndarray          # (N,3) [m]
     node_mass: np.ndarray          # (N,) [kg]
     tets: np.ndarray               # (T,4)
@@ -140,12 +107,15 @@ def _get(asset, name, default):
 
 
 def build_model(asset, params=None, objects=()):
-    """Model from a HandAsset (or any object with its fields) + params dict + rigid objects.
+    """Model from a HandAsset (or any object with its fields) + parameters + rigid objects.
+
+    params: {sim_node key: value} overriding the schema's defaults (model_params), e.g.
+    {"gravity_bones": True, "tracking_kx": 50.0}; Model.params keeps the full checked dict.
 
     objects: sequence with .mass [kg], .inertia_local (3,3) [kg m^2] and .pose (7,) (e.g.
     scene.SceneObject); each becomes a body coupled by Eq. 14 to a target pose.
     """
-    p = merged_params(params)
+    p = model_params(params)
     X = np.ascontiguousarray(asset.tet_nodes, dtype=np.float64)
     tets = np.ascontiguousarray(asset.tets, dtype=np.int32)
     N, T = len(X), len(tets)
@@ -164,12 +134,12 @@ def build_model(asset, params=None, objects=()):
     inertia = np.concatenate([np.asarray(_get(asset, "bone_inertia_local", np.zeros((0, 3, 3))), float).reshape(-1, 3, 3),
                               np.array([np.asarray(o.inertia_local, float) for o in objects]).reshape(-1, 3, 3)])
     rest_pose = np.concatenate([bone_pose, np.array([np.asarray(o.pose, float) for o in objects]).reshape(-1, 7)])
-    kx = np.full(B, p["object_target_kx"])
-    kth = np.full(B, p["object_target_ktheta"])
-    kx[:nb] = p["bone_target_kx_phalanx"]
+    kx = np.full(B, p["object_kx"])
+    kth = np.full(B, p["object_ktheta"])
+    kx[:nb] = p["tracking_kx_phalanx"]
     if nb:
-        kx[0] = p["bone_target_kx_palm"]
-    kth[:nb] = p["bone_target_ktheta"]
+        kx[0] = p["tracking_kx"]
+    kth[:nb] = p["tracking_ktheta"]
     gb = np.ones(B) * float(bool(p["gravity_objects"]))
     gb[:nb] = float(bool(p["gravity_bones"]))
     gn = np.full(N, float(bool(p["gravity_tissue"])))

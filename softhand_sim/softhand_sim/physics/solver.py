@@ -87,8 +87,8 @@ def skin_positions_kernel(x, tets, skin_tet, skin_bary, out):
 class Solver:
     """One-Newton-step implicit solver of the soft hand and its rigid objects.
 
-    params: the dict of model.DEFAULT_PARAMS (solver keys: cg_tolerance, cg_max_iterations,
-    preconditioner) - by default the model's own.
+    params: sim_node parameters by their schema names (params.SIM; solver keys: cg_tolerance,
+    cg_max_iterations, preconditioner) overriding the model's own (model.params).
     """
 
     def __init__(self, model, params=None):

@@ -191,8 +191,7 @@ def sim_node_solver_params():
     """The solver parameters sim_node runs with (config/softhand.yaml): hand gravity off, the
     palm coupled at tracking_kx 500 N/m (see the yaml for why these depart from the paper)."""
     from softhand_sim.params import load_params
-    from softhand_sim.runtime import solver_params
-    return solver_params(load_params("sim_node"))
+    return load_params("sim_node")
 
 
 class PinchScenario:
