@@ -4,7 +4,6 @@ Hand gravity is off in these tests (the paper's 50 N/m palm coupling would let t
 centimetres under its own weight); the ball keeps gravity (Sect. 3.1).
 """
 import dataclasses
-import time
 
 import numpy as np
 import pytest
@@ -32,10 +31,9 @@ def _min_tet_volume(model, x):
     return np.linalg.det(np.stack([X[:, 1] - X[:, 0], X[:, 2] - X[:, 0], X[:, 3] - X[:, 0]], 2)).min() / 6
 
 
-def test_palm_on_ball_gives_100_contacts_under_0_7_ms(asset):
-    """Pressing the scene's ball 6 mm into the palm activates 100+ embedded-skin contacts, and one
-    detection pass over all 5 scene objects + ground (11.8k skin points) takes < 0.7 ms (best
-    median of 5 batches of 50 passes, one thread)."""
+def test_palm_on_ball_gives_100_contacts(asset):
+    """Pressing the scene's ball 6 mm into the palm activates 100+ embedded-skin contacts, all on the
+    ball. (What one detection pass costs is measured by `softhand bench`: collision_ms.)"""
     scene = load_scene()
     model = build_model(asset, HAND_PARAMS, objects=scene.dynamic_objects)
     cm = contact.build_contact_model(model, scene, asset, points="skin")
@@ -49,15 +47,6 @@ def test_palm_on_ball_gives_100_contacts_under_0_7_ms(asset):
     system.collide(state.node_x, state.body_x, state.body_q)
     assert system.count >= 100
     assert set(system.object[:system.count]) == {cm.object_names.index("ball")}
-    medians = []
-    for _ in range(5):
-        t = []
-        for _ in range(50):
-            t0 = time.perf_counter()
-            system.collide(state.node_x, state.body_x, state.body_q)
-            t.append(time.perf_counter() - t0)
-        medians.append(np.median(t))
-    assert min(medians) < 0.7e-3
 
 
 def test_squeeze_with_tracked_hand_3cm_inside_ball_stays_bounded(asset):

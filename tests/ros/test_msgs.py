@@ -1,5 +1,4 @@
 """Unit tests of softhand_sim.ros.msgs: message <-> numpy round trips (no DDS, no node)."""
-import time
 from types import SimpleNamespace
 
 import numpy as np
@@ -166,15 +165,13 @@ def test_diagnostics_from_dict():
         rm.diagnostic_status("x", {}, "fatal")
 
 
-def test_large_cloud_packing_is_fast():
-    """Packing a 20k-vertex skin cloud takes well under a sim step budget (numpy tobytes path)."""
+def test_large_cloud_packing_keeps_every_point():
+    """A 20k-vertex skin cloud (numpy tobytes path) packs every point as float32 x y z, in order."""
     xyz = np.random.default_rng(4).normal(size=(20000, 3))
-    rm.xyz_cloud_from_numpy(xyz, 0)
-    t0 = time.perf_counter()
-    for _ in range(10):
-        rm.xyz_cloud_from_numpy(xyz, 0)
-    per_call = (time.perf_counter() - t0) / 10
-    assert per_call < 5e-3, f"xyz cloud packing took {per_call * 1e3:.2f} ms"
+    cloud = rm.xyz_cloud_from_numpy(xyz, 0)
+    back = np.frombuffer(bytes(cloud.data), dtype=np.float32).reshape(-1, cloud.point_step // 4)[:, :3]
+    assert cloud.width * cloud.height == 20000
+    np.testing.assert_array_equal(back, xyz.astype(np.float32))
 
 
 def test_fast_triangle_marker_bytes_equal_rclpy_serialization():
@@ -191,8 +188,3 @@ def test_fast_triangle_marker_bytes_equal_rclpy_serialization():
         assert deserialize_message(fast_bytes, Marker) == deserialize_message(serialize_message(ref), Marker)
     back = deserialize_message(fast.serialize(v, f, 3.0), Marker)
     assert len(back.points) == 210 and back.points[5].y == v[f[1, 2], 1]
-    big_v = rng.normal(size=(3000, 3))
-    big_f = rng.integers(0, 3000, size=(6000, 3))
-    t0 = time.perf_counter()
-    fast.serialize(big_v, big_f, 1.0)
-    assert time.perf_counter() - t0 < 0.01

@@ -1,5 +1,4 @@
 """Intermediate-bone loop (paper Sect. 3.6): step response, equilibria, large jumps, dropouts, cost."""
-import time
 
 import numpy as np
 import pytest
@@ -181,22 +180,6 @@ def test_slow_grasp_lag_is_small():
     """grasp_lift (hand speeds below ~0.3 m/s): palm within 1 cm of the tracked palm throughout."""
     _, rows = _run_bag("grasp_lift")
     assert max(r[1] for r in rows) < 0.01
-
-
-def test_compute_per_step_under_budget():
-    """One 250 Hz step of the 16 bodies (numba) costs under 0.2 ms (median of 2000)."""
-    bones = IntermediateBones(LoopConfig(), default_bone_inertia())
-    start = _rest_bones()
-    bones.reset(start)
-    bones.set_tracked(_moved(start, bones.com_local, np.array([0.01, 0, 0]), np.array([0, 0.1, 0])))
-    bones.set_sim(start)
-    bones.step()
-    times = []
-    for _ in range(2000):
-        t0 = time.perf_counter()
-        bones.step()
-        times.append(time.perf_counter() - t0)
-    assert np.median(times) < 2e-4, np.median(times)
 
 
 def test_bad_parameters_name_the_key():
