@@ -132,6 +132,8 @@ PLAY = {
     "clock_rate": P(float, "Hz", "/clock ticks per second between messages (0: only with messages)", 0.0, 1e4),
     "wait_subscribers": P(int, "-", "wait until this many subscribers match the topic before playing", 0, 1000),
     "wait_timeout": P(float, "s", "give up waiting for subscribers after this long", 0.0),
+    "replay_topics": P(list, "-", "replay these topics of any type raw with their recorded QoS (empty: the tracker topic)"),
+    "replay_all": P(bool, "-", "replay every topic of the recording raw with its recorded QoS"),
 }
 
 RECORD = {

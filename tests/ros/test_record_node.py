@@ -231,8 +231,9 @@ def test_sigkill_leaves_a_recoverable_bag(ros_env, tmp_path, flush_period):
         time.sleep(1.0)  # longer than the short flush_period: the recorder has written its pending chunk
         assert proc.stop(signal.SIGKILL) == -signal.SIGKILL
     assert not (out / "metadata.yaml").exists()
-    with pytest.raises(BagError, match="no metadata.yaml"):
+    with pytest.raises(BagError, match="no metadata.yaml") as err:
         read_topic(out, "/hand/skin_vertices", "sensor_msgs/msg/PointCloud2")
+    assert f"python -m softhand_sim.ros.bagio recover {next(out.glob('*.mcap'))}" in str(err.value)
     recovered = recover_mcap(next(out.glob("*.mcap")), tmp_path / "fixed")
     per_chunk = 2**20 // len(serialize_message(cloud)) + 1
     if flush_period < 1.0:

@@ -24,6 +24,7 @@ warning), and without it their error names the recover command.
 """
 from __future__ import annotations
 
+import struct
 import sys
 from dataclasses import dataclass, field
 from io import BytesIO, StringIO
@@ -186,13 +187,14 @@ def iter_intact_mcap(mcap_path):
                 elif isinstance(record, Message):
                     ch = channels[record.channel_id]
                     yield schemas[ch.schema_id], ch, record
-        except (McapError, EOFError, ValueError, OSError, KeyError):
+        except (McapError, EOFError, ValueError, OSError, KeyError, struct.error):
             return  # the torn tail: everything before it is already yielded
 
 
 def _read_torn(p: Path, mcap_path: Path, topics) -> Recording:
-    found, messages = {}, []
+    found, messages, seen = {}, [], 0
     for schema, ch, msg in iter_intact_mcap(mcap_path):
+        seen += 1
         if topics is not None and ch.topic not in topics:
             continue
         if ch.topic not in found:
@@ -200,8 +202,11 @@ def _read_torn(p: Path, mcap_path: Path, topics) -> Recording:
                                             parse_qos(ch.metadata.get("offered_qos_profiles", "")),
                                             ch.metadata.get("topic_type_hash", ""))
         messages.append((int(msg.log_time), ch.topic, bytes(msg.data)))
+    if not seen:
+        raise BagError(f"cannot read bag {p}: its mcap file {mcap_path.name} is corrupt or was cut short "
+                       f"before its first complete chunk (no summary, no end magic, no readable message)")
     messages.sort(key=lambda m: m[0])
-    return Recording(p, "mcap", found, messages, _torn_warning(mcap_path, len(messages)))
+    return Recording(p, "mcap", found, messages, _torn_warning(mcap_path, seen))
 
 
 def read_recording(path, topics=None, allow_torn: bool = False) -> Recording:
