@@ -3,9 +3,22 @@
     softhand-record [-o OUTPUT] [--topics T [T ...]] [--skin-vertices]
     ros2 run softhand_sim record_node --ros-args -p output:=run1 -p topics:="['/hand/bones']"
 
-What it writes: one mcap file plus metadata.yaml (rosbags Writer, mcap storage). Every channel
-carries its message definition as a ros2msg schema and the type's RIHS01 hash, so `ros2 bag
-info`, `ros2 bag play`, Foxglove and the mcap/mcap_ros2 readers open and decode it.
+What it writes: one mcap file plus metadata.yaml (rosbags Writer, mcap storage, laid out like
+rosbag2 Jazzy's: softhand_sim.ros.bagio.JazzyWriter). Every channel carries its message
+definition as a ros2msg schema and, in its metadata, `topic_type_hash` (RIHS01) and
+`offered_qos_profiles`; metadata.yaml has the same per topic and `ros_distro: jazzy`. So `ros2
+bag info`, `ros2 bag play`, Foxglove and the mcap/mcap_ros2 readers open and decode it, and a
+replay offers each topic with the recorded QoS (/hand/skin_mesh stays transient local for a
+late-joining viewer).
+
+Offered QoS: like `ros2 bag record`, the QoS profiles of the topic's publishers as discovery
+reports them (get_publishers_info_by_topic: reliability, durability, deadline, lifespan,
+liveliness; history "unknown" and depth 0, which DDS does not announce). They are read when the
+topic's first message arrives -- the channel is added to the bag then -- because the INTERFACE.md
+topics are subscribed at start, often before any publisher exists. A topic whose publishers
+cannot be seen then (or that had no message at all: its channel is added on close) gets the
+contract QoS of INTERFACE.md (softhand_sim.ros.common: LATCHED_QOS for /hand/skin_mesh, else
+PUB_QOS); the log says which was used.
 
 How it subscribes: the topics of docs/INTERFACE.md are subscribed at start with their contract QoS
 (reliable; /hand/skin_mesh transient local, so the mesh published once is received even when
@@ -34,11 +47,14 @@ import time
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
-from softhand_sim.ros.common import (LATCHED_TOPICS, TOPIC_TYPES, message_class, run_node,
-                                     split_cli)
+from softhand_sim.ros.common import (LATCHED_QOS, LATCHED_TOPICS, PUB_QOS, TOPIC_TYPES, message_class,
+                                     run_node, split_cli)
 from softhand_sim.params import ParamError
 from softhand_sim.ros.params import declare_node_params
-from softhand_sim.ros.bagio import BagError, add_topic, flush_chunk, known_type, open_writer
+from softhand_sim.ros.bagio import (BagError, add_topic, flush_chunk, header_stamp_ns, known_type, open_writer,
+                                    qos_from_profile, type_hash)
+
+__all__ = ["RecordNode", "header_stamp_ns", "main"]  # header_stamp_ns: kept importable from here
 
 #: Default topic list: every softhand topic of docs/INTERFACE.md but the heavy /hand/skin_vertices.
 DEFAULT_TOPICS = [t for t in TOPIC_TYPES if t != "/hand/skin_vertices"]
@@ -62,20 +78,6 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
-def header_stamp_ns(raw: bytes):
-    """Header stamp [ns] of a CDR message that starts with std_msgs/Header, else None.
-
-    CDR: 4-byte encapsulation (byte 1: 0x01 little endian), then Header.stamp = sec int32,
-    nanosec uint32. Only used for types known to start with a Header.
-    """
-    if len(raw) < 12:
-        return None
-    order = "little" if raw[1] & 1 else "big"
-    sec = int.from_bytes(raw[4:8], order, signed=True)
-    nsec = int.from_bytes(raw[8:12], order, signed=False)
-    return sec * 1_000_000_000 + nsec
-
-
 def record_qos(best_effort: bool, latched: bool) -> QoSProfile:
     """Subscription QoS of a recorded topic.
 
@@ -93,6 +95,11 @@ def record_qos(best_effort: bool, latched: bool) -> QoSProfile:
     return QoSProfile(history=history, depth=depth,
                       reliability=ReliabilityPolicy.BEST_EFFORT if best_effort else ReliabilityPolicy.RELIABLE,
                       durability=DurabilityPolicy.TRANSIENT_LOCAL if latched else DurabilityPolicy.VOLATILE)
+
+
+def _qos_words(q) -> str:
+    """'reliable, transient_local' for a rosbags Qos (log text)."""
+    return f"{q.reliability.name.lower()}, {q.durability.name.lower()}"
 
 
 class RecordNode(Node):
@@ -113,6 +120,7 @@ class RecordNode(Node):
         self.output = output
         self.cfg = cfg
         self.subs, self.conns, self.counts = {}, {}, {}
+        self.msgtypes, self.offers_seen = {}, {}
         self.bytes = 0
         self.header_types = set()
         self._closed = False
@@ -127,6 +135,7 @@ class RecordNode(Node):
     def _qos_for(self, topic: str) -> QoSProfile:
         """Adapt to the publishers like rosbag2: best effort if any is, transient local if all are."""
         infos = self.get_publishers_info_by_topic(topic)
+        self.offers_seen[topic] = [i.qos_profile for i in infos]
         best_effort = any(i.qos_profile.reliability == ReliabilityPolicy.BEST_EFFORT for i in infos)
         latched = bool(infos) and all(i.qos_profile.durability == DurabilityPolicy.TRANSIENT_LOCAL for i in infos)
         return record_qos(best_effort, latched)
@@ -162,7 +171,8 @@ class RecordNode(Node):
         cls = message_class(msgtype)
         if cls.get_fields_and_field_types().get("header") == "std_msgs/Header":
             self.header_types.add(topic)
-        self.conns[topic] = add_topic(self.writer, topic, msgtype)
+        self.msgtypes[topic] = msgtype
+        self.conns[topic] = None  # added with the first message, when its publishers are known
         self.counts[topic] = 0
         self.subs[topic] = self.create_subscription(cls, topic, self._make_callback(topic), qos, raw=True)
         self.get_logger().info(
@@ -170,8 +180,42 @@ class RecordNode(Node):
             f"({'best effort' if qos.reliability == ReliabilityPolicy.BEST_EFFORT else 'reliable'}"
             f"{', transient local' if qos.durability == DurabilityPolicy.TRANSIENT_LOCAL else ''})")
 
+    def _offered_qos(self, topic: str) -> tuple[list, str]:
+        """The topic's offered QoS (rosbags Qos list) and where it came from (for the log)."""
+        profiles = []
+        try:
+            profiles = [i.qos_profile for i in self.get_publishers_info_by_topic(topic)]
+        except Exception:  # noqa: BLE001 -- the context may be shutting down (close after a signal)
+            pass
+        if profiles:
+            return [qos_from_profile(p) for p in profiles], f"offered by {len(profiles)} publisher(s)"
+        if self.offers_seen.get(topic):
+            return [qos_from_profile(p) for p in self.offers_seen[topic]], "offered at subscription"
+        contract = LATCHED_QOS if topic in LATCHED_TOPICS else PUB_QOS
+        return [qos_from_profile(contract)], "contract QoS, no publisher seen"
+
+    def _open_connection(self, topic: str):
+        """Add the topic's channel to the bag, with its offered QoS and the type's RIHS01 hash."""
+        msgtype = self.msgtypes[topic]
+        offers, source = self._offered_qos(topic)
+        self.conns[topic] = add_topic(self.writer, topic, msgtype, offers)
+        self._check_type_hash(topic, msgtype)
+        self.get_logger().info(
+            f"{topic}: offered QoS {', '.join(sorted({_qos_words(q) for q in offers}))} ({source})")
+        return self.conns[topic]
+
+    def _check_type_hash(self, topic: str, msgtype: str) -> None:
+        """Warn when a publisher's type hash differs from the Jazzy one written in the bag."""
+        try:
+            hashes = {str(i.topic_type_hash) for i in self.get_publishers_info_by_topic(topic)}
+        except Exception:  # noqa: BLE001 -- as in _offered_qos
+            return
+        other = sorted(h for h in hashes if h.startswith("RIHS01_") and h != type_hash(msgtype))
+        if other:
+            self.get_logger().warn(f"{topic}: publisher type hash {', '.join(other)} differs from the Jazzy "
+                                   f"{msgtype} ({type_hash(msgtype)}) written in the bag")
+
     def _make_callback(self, topic: str):
-        conn = self.conns[topic]
         use_header = self.cfg["stamp_source"] == "header" and topic in self.header_types
 
         def on_message(raw: bytes) -> None:
@@ -180,6 +224,7 @@ class RecordNode(Node):
             stamp = header_stamp_ns(raw) if use_header else None
             if stamp is None:
                 stamp = self.get_clock().now().nanoseconds
+            conn = self.conns[topic] or self._open_connection(topic)
             self.writer.write(conn, stamp, raw)
             self.counts[topic] += 1
             self.bytes += len(raw)
@@ -196,6 +241,9 @@ class RecordNode(Node):
         """Finish the bag (pending chunk, summary, metadata.yaml); safe to call twice."""
         if self._closed:
             return
+        for topic, conn in self.conns.items():
+            if conn is None:  # subscribed, never received: listed with 0 messages, like rosbag2
+                self._open_connection(topic)
         self._closed = True
         self.writer.close()
         counts = ", ".join(f"{t}: {n}" for t, n in self.counts.items()) or "nothing"

@@ -1,6 +1,7 @@
-"""play_node: replays a tracker rosbag2 (mcap or sqlite3) on its recorded timing.
+"""play_node: replays a tracker rosbag2 (mcap or sqlite3), or any topics of a recording, on its recorded timing.
 
     softhand-play BAG [--rate R] [--loop] [--start S] [--wait-subscribers N]
+    softhand-play BAG --all | --topics T [T ...]      (a record_node / ros2 bag recording)
     ros2 run softhand_tracking play_node --ros-args -p bag:=BAG -p rate:=2.0
 
 Publishes the bag's /tracker/hand_joints messages (geometry_msgs/PoseArray, header stamps as
@@ -9,6 +10,19 @@ the bag time, before each message and every 1/clock_rate s in between, so nodes 
 use_sim_time see a clock that advances through gaps (a tracker dropout) too. With --loop the
 bag repeats; each repeat shifts both /clock and the header stamps forward by the bag's duration
 plus one median period, so time never goes backwards.
+
+With --all (every topic) or --topics, the recording is replayed like `ros2 bag play`: each topic
+of any type is published raw (the recorded CDR bytes, never deserialized) with the QoS its
+publishers offered when it was recorded (metadata `offered_qos_profiles`, chosen as rosbag2
+Jazzy's Rosbag2QoS::adapt_offer_to_recorded_offers does: the recorded profile with keep-last 10,
+or rosbag2's default when the publishers differed), so /hand/skin_mesh is transient local again
+and a viewer that joins late still gets the mesh. /clock is published as above (a recorded /clock
+topic is then left out); on --loop the header stamps of Header-first messages move with it.
+--wait-subscribers N then counts the subscribers of all replayed topics together.
+
+A recording cut short (recorder killed: mcap without summary and end magic, no metadata.yaml) is
+played from its complete chunks, with a warning that names the recover command
+(`python -m softhand_sim.ros.bagio recover BROKEN.mcap NEW_BAG`).
 
 Exit codes: 0 when the bag is done (non-looping) or on Ctrl-C/SIGTERM; 1 when the bag cannot be
 used (the message on stderr names the bag and the problem); 2 for a bad command line.
@@ -25,15 +39,17 @@ import rclpy
 from rclpy.duration import Duration
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, LivelinessPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.serialization import deserialize_message
 from geometry_msgs.msg import PoseArray
 from rosgraph_msgs.msg import Clock
 
-from softhand_sim.ros.common import PUB_QOS, split_cli
+from softhand_sim.ros.common import PUB_QOS, message_class, split_cli
 from softhand_sim.ros.msgs import stamp_from_ns, stamp_to_ns
 from softhand_sim.params import ParamError
 from softhand_sim.ros.params import declare_node_params
-from softhand_sim.ros.bagio import BagError, read_topic
+from softhand_sim.ros.bagio import (BagError, header_stamp_ns, read_recording, read_topic, starts_with_header,
+                                    with_header_stamp)
 
 MSGTYPE = "geometry_msgs/msg/PoseArray"
 _MAX_SLEEP_S = 0.02  # sleep in slices so a shutdown (signal) is noticed quickly
@@ -44,9 +60,10 @@ def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="softhand-play",
         description="Replay a tracker rosbag2 (mcap or sqlite3) on /tracker/hand_joints on its recorded "
-                    "timing, publishing /clock with the bag time (for use_sim_time). Exits when done.",
+                    "timing, publishing /clock with the bag time (for use_sim_time). Exits when done. "
+                    "With --all or --topics, replay a recording's topics with their recorded QoS.",
         epilog="ROS parameters of the same names (bag, rate, loop, start, topic, publish_clock, clock_rate, "
-               "wait_subscribers, wait_timeout) work with --ros-args -p NAME:=VALUE; flags override them.")
+               "wait_subscribers, wait_timeout, replay_topics, replay_all) work with --ros-args -p NAME:=VALUE; flags override them.")
     p.add_argument("bag", nargs="?", default=None, help="rosbag2 directory (folder with metadata.yaml)")
     p.add_argument("--rate", type=float, default=None, help="playback speed factor (default 1.0)")
     p.add_argument("--loop", action="store_true", default=None, help="repeat the bag until stopped")
@@ -58,7 +75,49 @@ def build_parser() -> argparse.ArgumentParser:
                    help="/clock ticks per second between messages (default 250, 0: only with messages)")
     p.add_argument("--wait-subscribers", dest="wait_subscribers", type=int, default=None, metavar="N",
                    help="wait until N subscribers match the topic before playing (default 0)")
+    which = p.add_mutually_exclusive_group()
+    which.add_argument("--topics", dest="replay_topics", nargs="+", default=None, metavar="T",
+                       help="replay these topics (any type, raw) with their recorded QoS, like ros2 bag play")
+    which.add_argument("--all", dest="replay_all", action="store_true", default=None,
+                       help="replay every topic of the recording with its recorded QoS")
     return p
+
+
+#: rosbag2's default playback offer (Rosbag2QoS{}: rmw_qos_profile_default, keep last 10).
+DEFAULT_PLAY_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10, reliability=ReliabilityPolicy.RELIABLE,
+                              durability=DurabilityPolicy.VOLATILE)
+
+
+def _duration(t) -> Duration:
+    """rclpy Duration of a recorded QoS time (sec, nsec); (0, 0) is rmw's 'default'."""
+    return Duration(nanoseconds=int(t.sec) * 1_000_000_000 + int(t.nsec))
+
+
+def playback_qos(offers: list) -> tuple[QoSProfile, str]:
+    """The QoS to publish a recorded topic with, from its recorded offers (rosbags Qos list).
+
+    As rosbag2 Jazzy's Rosbag2QoS::adapt_offer_to_recorded_offers: no offers -> rosbag2's default
+    (reliable, volatile, keep last 10); offers that agree on every policy that affects matching
+    (reliability, durability, deadline, liveliness and its lease) -> that profile with keep last 10
+    (discovery records no history); otherwise the default. Returns the profile and a note for the log.
+    """
+    if not offers:
+        return DEFAULT_PLAY_QOS, " (no QoS recorded: rosbag2's default)"
+    keys = {(q.reliability, q.durability, q.deadline, q.liveliness, q.liveliness_lease_duration) for q in offers}
+    if len(keys) > 1:
+        return DEFAULT_PLAY_QOS, " (its publishers offered different QoS: rosbag2's default)"
+    q = offers[0]
+
+    def policy(enum, value, default):
+        return enum[value.name] if value.name in enum.__members__ and value.name != "UNKNOWN" else default
+
+    return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
+                      reliability=policy(ReliabilityPolicy, q.reliability, ReliabilityPolicy.RELIABLE),
+                      durability=policy(DurabilityPolicy, q.durability, DurabilityPolicy.VOLATILE),
+                      deadline=_duration(q.deadline), lifespan=_duration(q.lifespan),
+                      liveliness=policy(LivelinessPolicy, q.liveliness, LivelinessPolicy.SYSTEM_DEFAULT),
+                      liveliness_lease_duration=_duration(q.liveliness_lease_duration),
+                      avoid_ros_namespace_conventions=bool(q.avoid_ros_namespace_conventions)), ""
 
 
 class PlayNode(Node):
@@ -75,7 +134,13 @@ class PlayNode(Node):
             raise BagError(f"rate must be > 0, got {cfg['rate']}")
         if cfg["start"] < 0:
             raise BagError(f"start must be >= 0 s, got {cfg['start']}")
-        data = read_topic(cfg["bag"], cfg["topic"], MSGTYPE)
+        self.raw_pubs = None  # topic -> publisher when replaying a recording's topics raw
+        if cfg["replay_all"] or cfg["replay_topics"]:
+            self._load_recording()
+            return
+        data = read_topic(cfg["bag"], cfg["topic"], MSGTYPE, allow_torn=True)
+        if data.warning:
+            self.get_logger().warn(data.warning)
         stamps = np.asarray(data.stamps_ns, dtype=np.int64)
         keep = stamps >= stamps[0] + int(round(cfg["start"] * 1e9))
         if not keep.any():
@@ -93,6 +158,49 @@ class PlayNode(Node):
         self.published = 0
         self.get_logger().info(
             f"bag {data.path} ({data.storage}): {len(self.msgs)} messages on {cfg['topic']}, "
+            f"{(self.stamps[-1] - self.stamps[0]) * 1e-9:.2f} s, rate x{cfg['rate']:g}"
+            + (", looping" if cfg["loop"] else ""))
+
+    def _load_recording(self) -> None:
+        """Raw replay: the chosen topics' messages, one publisher per topic with its recorded QoS."""
+        cfg = self.cfg
+        rec = read_recording(cfg["bag"], None if cfg["replay_all"] else cfg["replay_topics"], allow_torn=True)
+        if rec.warning:
+            self.get_logger().warn(rec.warning)
+        self.clock_pub = self.create_publisher(Clock, "/clock", PUB_QOS) if cfg["publish_clock"] else None
+        self.raw_pubs, self.header_first = {}, set()
+        for topic, info in sorted(rec.topics.items()):
+            if topic == "/clock" and self.clock_pub is not None:
+                self.get_logger().info("leaving out the recorded /clock: /clock is published with the bag time")
+                continue
+            try:
+                cls = message_class(info.msgtype)
+            except ValueError as exc:  # a type this rclpy installation does not have
+                if not cfg["replay_all"]:
+                    raise BagError(f"bag {rec.path}: cannot replay {topic}: {exc}") from None
+                self.get_logger().warn(f"skipping {topic}: {exc}")
+                continue
+            qos, note = playback_qos(info.offered_qos)
+            self.raw_pubs[topic] = self.create_publisher(cls, topic, qos)
+            if starts_with_header(info.msgtype):
+                self.header_first.add(topic)
+            self.get_logger().info(f"{topic} [{info.msgtype}]: {qos.reliability.name.lower()}, "
+                                   f"{qos.durability.name.lower()}{note}")
+        msgs = [m for m in rec.messages if m[1] in self.raw_pubs]
+        if not msgs:
+            raise BagError(f"bag {rec.path}: nothing to replay (topics: {', '.join(sorted(rec.topics))})")
+        stamps = np.asarray([m[0] for m in msgs], dtype=np.int64)
+        keep = stamps >= stamps[0] + int(round(cfg["start"] * 1e9))
+        if not keep.any():
+            raise BagError(f"start {cfg['start']} s is past the end of bag {rec.path} "
+                           f"(duration {(stamps[-1] - stamps[0]) * 1e-9:.3f} s)")
+        self.raw_msgs = [(topic, raw) for (_s, topic, raw), k in zip(msgs, keep) if k]
+        self.stamps = stamps[keep]
+        periods = np.diff(self.stamps)
+        self.loop_shift_ns = int(self.stamps[-1] - self.stamps[0]) + (int(np.median(periods)) if periods.size else 0)
+        self.published = 0
+        self.get_logger().info(
+            f"bag {rec.path} ({rec.storage}): {len(self.raw_msgs)} messages on {len(self.raw_pubs)} topics, "
             f"{(self.stamps[-1] - self.stamps[0]) * 1e-9:.2f} s, rate x{cfg['rate']:g}"
             + (", looping" if cfg["loop"] else ""))
 
@@ -116,10 +224,16 @@ class PlayNode(Node):
         """Block until `wait_subscribers` subscriptions match (BagError-free: a plain timeout error)."""
         want = int(self.cfg["wait_subscribers"])
         deadline = time.monotonic() + float(self.cfg["wait_timeout"])
-        while self.pub.get_subscription_count() < want:
+        pubs = list(self.raw_pubs.values()) if self.raw_pubs is not None else [self.pub]
+
+        def matched() -> int:
+            return sum(p.get_subscription_count() for p in pubs)
+
+        while matched() < want:
             if time.monotonic() > deadline:
-                raise TimeoutError(f"{self.pub.get_subscription_count()} of {want} subscribers on "
-                                   f"{self.cfg['topic']} after {self.cfg['wait_timeout']} s")
+                where = self.cfg["topic"] if self.raw_pubs is None else "the replayed topics"
+                raise TimeoutError(f"{matched()} of {want} subscribers on "
+                                   f"{where} after {self.cfg['wait_timeout']} s")
             if not self._sleep_until(time.monotonic() + 0.05):
                 return False
         # the writer has matched the readers; give the readers' side of discovery a moment too,
@@ -128,6 +242,8 @@ class PlayNode(Node):
 
     def play(self) -> None:
         """Replay (forever with loop); returns when done or when ROS shuts down."""
+        if self.raw_pubs is not None:
+            return self._play_raw()
         rate = float(self.cfg["rate"])
         tick_ns = int(1e9 / self.cfg["clock_rate"]) if self.cfg["clock_rate"] > 0 else 0
         t0 = int(self.stamps[0])
@@ -168,10 +284,52 @@ class PlayNode(Node):
             self.get_logger().info(f"loop {loop}: restarting the bag")
 
 
+    def _play_raw(self) -> None:
+        """play() for a recording's topics: raw CDR bytes on each topic's publisher, same timing and /clock."""
+        rate = float(self.cfg["rate"])
+        tick_ns = int(1e9 / self.cfg["clock_rate"]) if self.cfg["clock_rate"] > 0 else 0
+        t0 = int(self.stamps[0])
+        wall0 = time.monotonic()
+        loop = 0
+        next_log = wall0 + 10.0
+        while True:
+            shift = loop * self.loop_shift_ns
+            last_clock = None
+            for (topic, raw), stamp in zip(self.raw_msgs, self.stamps):
+                bag_ns = int(stamp) + shift
+                if tick_ns and self.clock_pub is not None and last_clock is not None:
+                    t = last_clock + tick_ns
+                    while t < bag_ns:
+                        if not self._sleep_until(wall0 + (t - t0) * 1e-9 / rate):
+                            return
+                        self._publish_clock(t)
+                        t += tick_ns
+                if not self._sleep_until(wall0 + (bag_ns - t0) * 1e-9 / rate):
+                    return
+                if last_clock != bag_ns:
+                    self._publish_clock(bag_ns)
+                last_clock = bag_ns
+                if shift and topic in self.header_first:
+                    raw = with_header_stamp(raw, header_stamp_ns(raw) + shift)
+                self.raw_pubs[topic].publish(raw)
+                self.published += 1
+                if time.monotonic() > next_log:
+                    next_log = time.monotonic() + 10.0
+                    self.get_logger().info(f"published {self.published} messages, bag time "
+                                           f"{(bag_ns - t0) * 1e-9:.1f} s")
+            if not self.cfg["loop"]:
+                for pub in self.raw_pubs.values():
+                    pub.wait_for_all_acked(Duration(seconds=2.0))
+                self.get_logger().info(f"done: published {self.published} messages")
+                return
+            loop += 1
+            self.get_logger().info(f"loop {loop}: restarting the bag")
+
+
 def main(args=None) -> None:
     ns, argv = split_cli(build_parser(), args)
     overrides = {k: getattr(ns, k) for k in ("bag", "rate", "loop", "start", "topic", "publish_clock",
-                                             "clock_rate", "wait_subscribers")}
+                                             "clock_rate", "wait_subscribers", "replay_topics", "replay_all")}
     rclpy.init(args=argv)
     node = None
     code = 0

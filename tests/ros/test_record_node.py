@@ -1,26 +1,33 @@
 """record_node: exact message counts after SIGINT/SIGTERM (also right after a fast burst), schemas
-that decode, and SIGKILL recovery."""
+that decode, offered QoS / type hash / distro written like rosbag2 Jazzy, every bag well formed by
+the mcap library's reading, and SIGKILL recovery."""
 import signal
 import time
+from collections import Counter
+from pathlib import Path
 
 import numpy as np
 import pytest
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseArray
 from mcap.reader import make_reader
+from mcap.records import Footer
+from mcap.stream_reader import StreamReader
 from mcap_ros2.decoder import DecoderFactory
 from rclpy.duration import Duration
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.serialization import serialize_message
 from rosbags.rosbag2 import Reader
+from ruamel.yaml import YAML
 from sensor_msgs.msg import PointCloud2
 from shape_msgs.msg import Mesh
+from std_msgs.msg import String
 from trajectory_msgs.msg import MultiDOFJointTrajectory
 
 from tests.support.rosproc import RosGraph
 from softhand_sim.ros import msgs as rm
 from softhand_sim.record_node import header_stamp_ns
-from softhand_sim.ros.bagio import BagError, deserialize, read_topic, recover_mcap
+from softhand_sim.ros.bagio import MCAP_MAGIC, BagError, deserialize, read_recording, read_topic, recover_mcap
 
 pytestmark = pytest.mark.ros
 
@@ -29,6 +36,36 @@ DEEP = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000, reliability=Relia
                   durability=DurabilityPolicy.VOLATILE)
 LATCHED = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.RELIABLE,
                      durability=DurabilityPolicy.TRANSIENT_LOCAL)
+
+
+def assert_well_formed_mcap(bag_dir) -> dict:
+    """The bag's one .mcap file passes the mcap library's checks; returns {topic: message count}.
+
+    (The `mcap doctor` CLI is not on PyPI.) Checked: start and end magic; a full streaming pass
+    with chunk and data CRCs validated ends at the Footer; the summary (via the seeking reader)
+    has statistics whose message counts, per channel and in all, equal what iter_messages yields;
+    every channel has a known schema and rosbag2's two channel metadata keys.
+    """
+    files = list(Path(bag_dir).glob("*.mcap"))
+    assert len(files) == 1, files
+    data = files[0].read_bytes()
+    assert data[:8] == MCAP_MAGIC and data[-8:] == MCAP_MAGIC, "start/end magic"
+    with open(files[0], "rb") as f:
+        records = list(StreamReader(f, skip_magic=False, validate_crcs=True).records)
+    assert isinstance(records[-1], Footer)
+    with open(files[0], "rb") as f:
+        reader = make_reader(f, validate_crcs=True)
+        summary = reader.get_summary()
+        assert summary is not None and summary.statistics is not None
+        per_channel = Counter(channel.id for _s, channel, _m in reader.iter_messages())
+    stats = summary.statistics
+    assert sum(per_channel.values()) == stats.message_count
+    assert {k: v for k, v in stats.channel_message_counts.items() if v} == dict(per_channel)
+    assert stats.channel_count == len(summary.channels)
+    for ch in summary.channels.values():
+        assert ch.schema_id in summary.schemas and ch.message_encoding == "cdr"
+        assert {"offered_qos_profiles", "topic_type_hash"} <= set(ch.metadata), ch.metadata
+    return {ch.topic: stats.channel_message_counts.get(ch.id, 0) for ch in summary.channels.values()}
 
 
 def test_header_stamp_read_from_raw_cdr():
@@ -83,6 +120,7 @@ def test_record_exact_counts_and_schemas(ros_env, tmp_path, sig):
     with Reader(out) as reader:
         counts = {c.topic: c.msgcount for c in reader.connections}
         assert counts == {**{t: n for t in TYPES}, "/hand/skin_mesh": 1}
+    assert assert_well_formed_mcap(out) == counts
     bones = read_topic(out, "/hand/bones", "geometry_msgs/msg/PoseArray")
     xs = [rm.pose_array_to_numpy(deserialize(raw, bones.msgtype))[0, 0] for raw in bones.payloads]
     assert sorted(xs) == list(range(n))
@@ -99,6 +137,78 @@ def test_record_exact_counts_and_schemas(ros_env, tmp_path, sig):
     assert {t: len(v) for t, v in decoded.items()} == counts
     assert list(decoded["/hand/skin_mesh"][0].triangles[0].vertex_indices) == [0, 1, 2]
     assert sorted(m.points[0].transforms[0].translation.x for m in decoded["/hand/object_states"]) == list(range(n))
+
+
+BEST_EFFORT = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100, reliability=ReliabilityPolicy.BEST_EFFORT,
+                         durability=DurabilityPolicy.VOLATILE)
+INFINITE = {"sec": 9223372036, "nsec": 854775807}  # RMW_DURATION_INFINITE as rosbag2 writes it
+
+
+def test_offered_qos_type_hash_and_distro_like_rosbag2(ros_env, tmp_path):
+    """metadata.yaml and the mcap channels hold what rosbag2 Jazzy writes: per topic the offered QoS of
+    its publishers -- a latched mesh published before the recorder started, /hand/bones whose publisher
+    appears after the recorder subscribed, a best-effort topic found by discovery -- or, for a topic
+    without publishers, the INTERFACE.md contract QoS (listed with 0 messages); the type hash the
+    publishers announce; ros_distro jazzy; and the same profiles in both places."""
+    out = tmp_path / "rec"
+    topics = ["/hand/skin_mesh", "/hand/bones", "/custom", "/world/object_states"]
+    with RosGraph(ros_env) as g:
+        mesh_pub = g.publisher("/hand/skin_mesh", Mesh, LATCHED)
+        mesh_pub.publish(rm.mesh_from_numpy(np.eye(3), [[0, 1, 2]]))
+        custom_pub = g.publisher("/custom", String, BEST_EFFORT)
+        proc = g.start(["softhand-record", "-o", str(out), "--topics", *topics])
+        g.wait_until(lambda: "subscribed /custom" in proc.output(), 30, "recorder subscription", proc)
+        bones_pub = g.publisher("/hand/bones", PoseArray, DEEP)  # after the recorder subscribed
+        for pub in (mesh_pub, custom_pub, bones_pub):
+            g.wait_matched(pub, proc=proc)
+        for i in range(5):
+            bones_pub.publish(rm.pose_array_from_numpy(np.tile([0, 0, 0, 0, 0, 0, 1.0], (16, 1)), i))
+            custom_pub.publish(String(data=str(i)))
+        assert bones_pub.wait_for_all_acked(Duration(seconds=10))
+        g.wait_until(lambda: proc.output().count("offered QoS") >= 3, 10, "three channels opened", proc)
+        live_hash = {t: str(g.node.get_publishers_info_by_topic(t)[0].topic_type_hash)
+                     for t in ("/hand/skin_mesh", "/hand/bones", "/custom")}
+        assert proc.stop(signal.SIGINT) == 0, proc.output()
+    assert "Traceback" not in proc.output()
+    info = YAML(typ="safe").load((out / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
+    assert info["ros_distro"] == "jazzy" and info["version"] == 9
+    meta = {t["topic_metadata"]["name"]: t for t in info["topics_with_message_count"]}
+    assert sorted(meta) == sorted(topics)
+    assert meta["/world/object_states"]["message_count"] == 0
+
+    def policies(topic):
+        return [(q["reliability"], q["durability"]) for q in meta[topic]["topic_metadata"]["offered_qos_profiles"]]
+
+    assert policies("/hand/skin_mesh") == [("reliable", "transient_local")]
+    assert policies("/hand/bones") == [("reliable", "volatile")]
+    assert policies("/custom") == [("best_effort", "volatile")]
+    assert policies("/world/object_states") == [("reliable", "volatile")]
+    # discovered offers: what discovery announces (no history/depth), infinite durations as rmw's
+    mesh_qos = meta["/hand/skin_mesh"]["topic_metadata"]["offered_qos_profiles"][0]
+    assert mesh_qos == {"history": "unknown", "depth": 0, "reliability": "reliable", "durability": "transient_local",
+                        "deadline": INFINITE, "lifespan": INFINITE, "liveliness": "automatic",
+                        "liveliness_lease_duration": INFINITE, "avoid_ros_namespace_conventions": False}
+    # the contract profile (common.PUB_QOS) for the topic nobody published
+    contract = meta["/world/object_states"]["topic_metadata"]["offered_qos_profiles"][0]
+    assert (contract["history"], contract["depth"]) == ("keep_last", 10)
+    for topic, h in live_hash.items():
+        assert h.startswith("RIHS01_") and meta[topic]["topic_metadata"]["type_description_hash"] == h
+    assert meta["/world/object_states"]["topic_metadata"]["type_description_hash"].startswith("RIHS01_")
+    # the mcap file: same profiles and hashes in the channel metadata, distro in its rosbag2 record
+    counts = assert_well_formed_mcap(out)
+    assert counts["/hand/skin_mesh"] == 1 and counts["/hand/bones"] == 5 and counts["/world/object_states"] == 0
+    with open(next(out.glob("*.mcap")), "rb") as f:
+        reader = make_reader(f)
+        channels = reader.get_summary().channels.values()
+        records = {m.name: m.metadata for m in reader.iter_metadata()}
+    for ch in channels:
+        tm = meta[ch.topic]["topic_metadata"]
+        assert YAML(typ="safe").load(ch.metadata["offered_qos_profiles"]) == tm["offered_qos_profiles"]
+        assert ch.metadata["topic_type_hash"] == tm["type_description_hash"]
+    assert YAML(typ="safe").load(records["rosbag2"]["serialized_metadata"])["ros_distro"] == "jazzy"
+    # rosbags reads the profiles back
+    rec = read_recording(out)
+    assert rec.topics["/hand/skin_mesh"].offered_qos[0].durability.name == "TRANSIENT_LOCAL"
 
 
 @pytest.mark.parametrize("flush_period", [0.3, 3600.0], ids=["periodic_flush", "no_flush"])
@@ -121,8 +231,9 @@ def test_sigkill_leaves_a_recoverable_bag(ros_env, tmp_path, flush_period):
         time.sleep(1.0)  # longer than the short flush_period: the recorder has written its pending chunk
         assert proc.stop(signal.SIGKILL) == -signal.SIGKILL
     assert not (out / "metadata.yaml").exists()
-    with pytest.raises(BagError, match="no metadata.yaml"):
+    with pytest.raises(BagError, match="no metadata.yaml") as err:
         read_topic(out, "/hand/skin_vertices", "sensor_msgs/msg/PointCloud2")
+    assert f"python -m softhand_sim.ros.bagio recover {next(out.glob('*.mcap'))}" in str(err.value)
     recovered = recover_mcap(next(out.glob("*.mcap")), tmp_path / "fixed")
     per_chunk = 2**20 // len(serialize_message(cloud)) + 1
     if flush_period < 1.0:
@@ -130,6 +241,7 @@ def test_sigkill_leaves_a_recoverable_bag(ros_env, tmp_path, flush_period):
     else:
         assert recovered == (n // per_chunk) * per_chunk  # whole 1 MiB chunks only
     if recovered:
+        assert assert_well_formed_mcap(tmp_path / "fixed") == {"/hand/skin_vertices": recovered}
         data = read_topic(tmp_path / "fixed", "/hand/skin_vertices", "sensor_msgs/msg/PointCloud2")
         assert [header_stamp_ns(p) for p in data.payloads] == list(range(recovered))
 
@@ -172,3 +284,4 @@ def test_burst_then_signal_loses_nothing(ros_env, tmp_path, sig):
           f"recorded {len(stamps)}")
     assert len(stamps) == BURST
     assert stamps == sorted(stamps) and len(set(stamps)) == BURST
+    assert assert_well_formed_mcap(out) == {"/hand/bones": BURST}

@@ -1,14 +1,23 @@
-"""play_node: replays a tracker bag on its recorded timing with /clock; every unusable bag is a clear error."""
+"""play_node: replays a tracker bag on its recorded timing with /clock; replays a recording's topics
+with their recorded QoS (a late transient-local subscriber gets the mesh); plays the complete chunks
+of a recording cut short, with a warning; every unusable bag is a clear error."""
+import signal
+import time
+
 import numpy as np
 import pytest
 from geometry_msgs.msg import PoseArray
+from rclpy.duration import Duration
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.serialization import serialize_message
 from rosgraph_msgs.msg import Clock
+from shape_msgs.msg import Mesh
 from std_msgs.msg import String
 
 from tests.support.rosproc import RosGraph, RosProc
-from softhand_sim.ros.msgs import pose_array_from_numpy, pose_array_to_numpy, stamp_to_ns
-from softhand_sim.ros.bagio import write_bag
+from softhand_sim.ros.common import LATCHED_QOS
+from softhand_sim.ros.msgs import mesh_from_numpy, pose_array_from_numpy, pose_array_to_numpy, stamp_to_ns
+from softhand_sim.ros.bagio import add_topic, flush_chunk, mcap_is_closed, open_writer, read_topic, write_bag
 
 # Timing over real DDS between processes on a shared 2-core machine: one retry absorbs a stall.
 pytestmark = [pytest.mark.ros, pytest.mark.flaky(reruns=1, reruns_delay=2)]
@@ -103,6 +112,118 @@ def test_start_skips_the_beginning(ros_env, tmp_path):
         assert proc.wait(30) == 0, proc.output()
         g.wait_until(lambda: len(joints) >= 10, 5, "messages")
         assert [pose_array_to_numpy(m)[0, 0] for m in joints.msgs] == list(range(20, 30))
+
+
+VOLATILE = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10, reliability=ReliabilityPolicy.RELIABLE,
+                      durability=DurabilityPolicy.VOLATILE)
+DEEP = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000, reliability=ReliabilityPolicy.RELIABLE,
+                  durability=DurabilityPolicy.VOLATILE)
+
+
+def test_replay_recording_with_recorded_qos(ros_env, tmp_path):
+    """record_node records a latched /hand/skin_mesh and 60 /hand/bones; `softhand-play --all` replays them
+    with the recorded QoS: the mesh publisher is transient local again, so a subscriber that joins after the
+    mesh was replayed still gets it (a volatile one joining with it gets nothing), and every bone message
+    arrives once, in order."""
+    rec, n = tmp_path / "rec", 60
+    with RosGraph(ros_env) as g:
+        mesh_pub = g.publisher("/hand/skin_mesh", Mesh, LATCHED_QOS)
+        mesh_pub.publish(mesh_from_numpy(np.eye(3), [[0, 1, 2]]))
+        bones_pub = g.publisher("/hand/bones", PoseArray, DEEP)
+        recorder = g.start(["softhand-record", "-o", str(rec), "--topics", "/hand/skin_mesh", "/hand/bones"])
+        g.wait_matched(mesh_pub, proc=recorder)
+        g.wait_matched(bones_pub, proc=recorder)
+        for i in range(n):  # ~3 s of recording, the mesh first
+            poses = np.tile([0, 0, 0, 0, 0, 0, 1.0], (16, 1))
+            poses[0, 0] = i
+            bones_pub.publish(pose_array_from_numpy(poses, T0_NS + i * 50_000_000))
+            time.sleep(0.05)
+        assert bones_pub.wait_for_all_acked(Duration(seconds=10))
+        assert recorder.stop(signal.SIGINT) == 0, recorder.output()
+    with RosGraph(ros_env) as g:  # a new graph: the recording's publishers are gone
+        bones = g.listen("/hand/bones", PoseArray, VOLATILE)
+        proc = g.start(["softhand-play", str(rec), "--all", "--wait-subscribers", "1"])
+        g.wait_until(lambda: len(bones) >= 5, 20, "the first bones (the mesh comes before them)", proc)
+        late_latched = g.listen("/hand/skin_mesh", Mesh, LATCHED_QOS)
+        late_volatile = g.listen("/hand/skin_mesh", Mesh, VOLATILE)
+        g.wait_until(lambda: len(late_latched) >= 1, 20, "the kept mesh", proc)
+        offers = g.node.get_publishers_info_by_topic("/hand/skin_mesh")
+        assert [o.qos_profile.durability for o in offers] == [DurabilityPolicy.TRANSIENT_LOCAL]
+        assert [o.qos_profile.durability for o in g.node.get_publishers_info_by_topic("/hand/bones")] == \
+            [DurabilityPolicy.VOLATILE]
+        assert proc.wait(30) == 0, proc.output()
+        g.wait_until(lambda: len(bones) >= n, 5, "all bones")
+        assert len(late_latched) == 1 and len(late_volatile) == 0
+        assert list(late_latched.msgs[0].triangles[0].vertex_indices) == [0, 1, 2]
+        assert [pose_array_to_numpy(m)[0, 0] for m in bones.msgs] == list(range(n))
+    out = proc.output()
+    assert "/hand/skin_mesh [shape_msgs/msg/Mesh]: reliable, transient_local" in out
+    assert f"done: published {n + 1} messages" in out and "Traceback" not in out
+
+
+def test_replay_chosen_topics_raw_with_loop(ros_env, tmp_path):
+    """--topics replays only the named topics (raw); with --loop the header stamps inside the raw messages
+    move forward by the bag's duration plus one period, as in tracker mode; /other is not published."""
+    tracker_bag(tmp_path / "one", [0.01] * 9)  # 10 messages, 0.09 s
+    data = read_topic(tmp_path / "one", TOPIC, "geometry_msgs/msg/PoseArray")
+    records = [(TOPIC, "geometry_msgs/msg/PoseArray", t, raw) for t, raw in zip(data.stamps_ns, data.payloads)]
+    records.append(("/other", "std_msgs/msg/String", T0_NS, serialize_message(String(data="x"))))
+    write_bag(tmp_path / "bag", records)
+    with RosGraph(ros_env) as g:
+        joints = g.listen(TOPIC, PoseArray)
+        proc = g.start(["softhand-play", str(tmp_path / "bag"), "--topics", TOPIC, "--loop",
+                        "--wait-subscribers", "1"])
+        g.wait_until(lambda: len(joints) >= 25, 20, "two and a half loops", proc)
+        assert g.node.count_publishers("/other") == 0
+        assert proc.stop() == 0, proc.output()
+    got = np.array([stamp_to_ns(m.header.stamp) for m in joints.msgs[:25]])
+    assert np.all(np.diff(got) > 0)
+    assert got[10] - got[0] == 10 * 10_000_000 and got[20] - got[10] == 10 * 10_000_000
+    assert [pose_array_to_numpy(m)[0, 0] for m in joints.msgs[:25]] == [i % 10 for i in range(25)]
+    assert "(no QoS recorded: rosbag2's default)" in proc.output()
+
+
+def torn_tracker_bag(path, complete, pending, keep_metadata=False):
+    """A recording cut short like a killed recorder's: `complete` tracker messages in flushed chunks,
+    `pending` more in a chunk never written, a half-written record at the end; no summary, no end
+    magic, no metadata.yaml (with keep_metadata: the metadata.yaml of a finished bag of the same name,
+    as when a bag is copied over a live one)."""
+    writer = open_writer(path)
+    conn = add_topic(writer, TOPIC, "geometry_msgs/msg/PoseArray")
+    for i in range(complete + pending):
+        poses = np.zeros((26, 7))
+        poses[:, 6] = 1.0
+        poses[0, 0] = i
+        t = T0_NS + i * 10_000_000
+        writer.write(conn, t, serialize_message(pose_array_from_numpy(poses, t)))
+        if i % 10 == 9 or i == complete - 1:
+            if i < complete:
+                flush_chunk(writer)
+    writer.storage.bio.write(b"\x06" + (10_000).to_bytes(8, "little") + b"torn")  # a cut chunk record
+    writer.storage.bio.close()  # the crash: the pending chunk, summary and footer are never written
+    if keep_metadata:
+        write_bag(path.parent / "finished", [(TOPIC, "geometry_msgs/msg/PoseArray", T0_NS, b"\x00\x01\x00\x00")])
+        (path / "metadata.yaml").write_bytes((path.parent / "finished" / "metadata.yaml").read_bytes())
+    mcap = next(path.glob("*.mcap"))
+    assert not mcap_is_closed(mcap)
+    return mcap
+
+
+@pytest.mark.parametrize("keep_metadata", [False, True], ids=["no_metadata", "stale_metadata"])
+def test_torn_recording_plays_its_complete_chunks(ros_env, tmp_path, keep_metadata):
+    """A recording cut short is played from its complete chunks (tracker mode and --all), with a warning
+    that names the recover command, and exit code 0."""
+    torn_tracker_bag(tmp_path / "bag", complete=25, pending=7, keep_metadata=keep_metadata)
+    for extra in ([], ["--all"]):
+        with RosGraph(ros_env) as g:
+            joints = g.listen(TOPIC, PoseArray)
+            proc = g.start(["softhand-play", str(tmp_path / "bag"), "--wait-subscribers", "1", *extra])
+            assert proc.wait(30) == 0, proc.output()
+            g.wait_until(lambda: len(joints) >= 25, 5, "the complete chunks' messages")
+            assert [pose_array_to_numpy(m)[0, 0] for m in joints.msgs] == list(range(25))
+        out = proc.output()
+        assert "cut short" in out and "python -m softhand_sim.ros.bagio recover" in out, out
+        assert "Traceback" not in out
 
 
 def _corrupt_mcap(d):
