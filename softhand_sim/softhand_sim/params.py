@@ -172,7 +172,8 @@ PLAY = {
     "wait_subscribers": P(int, 0, "-", "wait until this many subscribers match the topic before playing "
                           "(the demo uses 1)", 0, 1000),
     "wait_timeout": P(float, 30.0, "s", "give up waiting for subscribers after this long", 0.0),
-    "replay_topics": P(list, [], "-", "replay these topics of any type raw with their recorded QoS (empty: the tracker topic)"),
+    # [""], not []: ROS cannot type an empty list; empty entries are ignored
+    "replay_topics": P(list, [""], "-", "replay these topics of any type raw with their recorded QoS (empty: the tracker topic)"),
     "replay_all": P(bool, False, "-", "replay every topic of the recording raw with its recorded QoS"),
 }
 

@@ -127,6 +127,7 @@ class PlayNode(Node):
         super().__init__("play_node")
         cfg = declare_node_params(self, "play_node")  # schema: softhand_sim/params.py
         cfg.update({k: v for k, v in overrides.items() if v is not None})
+        cfg["replay_topics"] = [t for t in cfg["replay_topics"] if t]  # [""]: ROS cannot type an empty list
         self.cfg = cfg
         if not cfg["bag"]:
             raise BagError("no bag given: pass BAG on the command line or -p bag:=DIR")
