@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import argparse
 import time
-from collections import deque
 
 import numpy as np
 from geometry_msgs.msg import PoseArray
@@ -24,6 +23,7 @@ from softhand_sim.params import ParamError
 from softhand_sim.scene import SceneError
 from softhand_sim.ros.common import LATCHED_QOS, LATEST_QOS, PUB_QOS, DiagnosticsPublisher, RejectionLog, RateMeter, fail, run_node, split_cli
 from softhand_sim.ros.params import declare_node_params
+from softhand_sim.timing import StepStats
 
 NODE_NAME = "sim_node"
 DIAG_WINDOW = 1000  # steps in the /diagnostics step-time and CG statistics
@@ -67,9 +67,9 @@ class SimNode(Node):
         log.info(f"ready in {time.monotonic() - t0:.1f} s: {self.runtime.describe()}")
         self.rejections = RejectionLog(self.get_logger(), REJECT_LOG_PERIOD)
         self.meter = RateMeter()
-        self.step_ms = deque(maxlen=DIAG_WINDOW)  # [ms] per step, the window /diagnostics reports on
-        self.cg_iters = deque(maxlen=DIAG_WINDOW)
-        self.overruns = 0
+        # [ms] per step; over_budget counts the steps that took longer than their period (overruns)
+        self.step_ms = StepStats(window=DIAG_WINDOW, budget=1e3 * self.dt)
+        self.cg_iters = StepStats(window=DIAG_WINDOW)
         self.last_guard_warning = ""
         self.pub_bones = self.create_publisher(PoseArray, "/hand/bones", PUB_QOS)
         self.pub_objects = self.create_publisher(MultiDOFJointTrajectory, "/hand/object_states", PUB_QOS)
@@ -119,10 +119,8 @@ class SimNode(Node):
         if out is None:  # no bone targets yet: nothing to simulate
             return
         self.meter.tick()
-        self.step_ms.append(1e3 * elapsed)
-        self.cg_iters.append(out.stats.cg_iters)
-        if elapsed > self.dt:
-            self.overruns += 1
+        self.step_ms.add(1e3 * elapsed)
+        self.cg_iters.add(out.stats.cg_iters)
         stamp = rm.stamp_from_seconds(out.t)  # the time of the state: the end of the step
         self.pub_bones.publish(rm.pose_array_from_numpy(out.bone_poses, stamp))
         if len(out.object_names):
@@ -142,21 +140,19 @@ class SimNode(Node):
             self.get_logger().warning(out.warning, throttle_duration_sec=2.0)
 
     def collect_diagnostics(self):
-        steps = np.asarray(self.step_ms)
-        iters = np.asarray(self.cg_iters)
         rate = self.meter.stats()
         values = {
             "sim_rate_hz": rate["rate_hz"],
-            "step_ms_p50": float(np.median(steps)) if steps.size else float("nan"),
-            "step_ms_p99": float(np.percentile(steps, 99)) if steps.size else float("nan"),
-            "cg_iters_p50": float(np.median(iters)) if iters.size else float("nan"),
-            "cg_iters_max": int(iters.max()) if iters.size else 0,
-            "overruns": self.overruns,
+            "step_ms_p50": self.step_ms.median(), "step_ms_p99": self.step_ms.percentile(99),
+            "step_ms_max": self.step_ms.max(),
+            "cg_iters_p50": self.cg_iters.median(),
+            "cg_iters_max": int(self.cg_iters.max()) if len(self.cg_iters) else 0,
+            "overruns": self.step_ms.over_budget,
             **self.runtime.diagnostics(),
             **{f"rejected_{k}": v for k, v in self.rejections.counts.items()},
         }
         values["last_guard_warning"] = self.last_guard_warning or "-"
-        message = "simulating" if steps.size else "waiting for /hand/intermediate_bones"
+        message = "simulating" if self.step_ms.count else "waiting for /hand/intermediate_bones"
         if self.last_guard_warning:  # the latest divergence stays visible in the status line
             message = f"{message}; {values['rejected_steps']} step(s) rejected, last: {self.last_guard_warning}"
         level = "warn" if values.get("rejected_steps", 0) else "ok"

@@ -19,7 +19,6 @@ from __future__ import annotations
 import argparse
 import gc
 import time
-from collections import deque
 
 import numpy as np
 from geometry_msgs.msg import PoseArray
@@ -29,6 +28,7 @@ from softhand_sim.ros.common import (LATEST_QOS, PUB_QOS, SENSOR_QOS, Diagnostic
                                      fail, run_node, split_cli)
 from softhand_sim.ros.msgs import pose_array_from_numpy, pose_array_to_numpy, stamp_to_seconds
 from softhand_sim.ros.params import declare_node_params
+from softhand_sim.timing import FixedRateScheduler, StepStats
 from softhand_tracking.adapter import AdapterConfig, TrackerAdapter
 from softhand_tracking.loop import LoopConfig, TrackingLoop, warm_up
 
@@ -58,15 +58,11 @@ class TrackingNode(Node):
         self.create_subscription(PoseArray, "/tracker/hand_joints", self.on_tracker, SENSOR_QOS)
         self.create_subscription(PoseArray, "/hand/bones", self.on_sim_bones, LATEST_QOS)
         self.rate_meter = RateMeter(window=int(5 * p["rate"]))
-        self.step_ms = deque(maxlen=int(5 * p["rate"]))
+        self.step_ms = StepStats(window=int(5 * p["rate"]))  # [ms] compute per step
         self.published = 0
-        self.late_steps = 0       # steps run late by a catch-up
-        self.skipped_steps = 0    # steps given up (more than MAX_CATCH_UP_S behind)
         self.bad_sim_messages = 0
-        self.period_ns = int(round(1e9 / p["rate"]))
-        self.max_catch_up = max(1, int(MAX_CATCH_UP_S * p["rate"]))
-        self.next_step_ns = None  # node-clock time of the next step
-        self.step_count = 0
+        # late_steps: run late by a catch-up; skipped_steps: given up, more than MAX_CATCH_UP_S behind
+        self.scheduler = FixedRateScheduler(p["rate"], max_catch_up=max(1, int(MAX_CATCH_UP_S * p["rate"])))
         self._diag_mark = (time.monotonic(), 0)
         self.timer = self.create_timer(1.0 / p["rate"], self.on_timer)
         DiagnosticsPublisher(self, self.collect_diagnostics, period=1.0 / p["diagnostics_rate"])
@@ -101,27 +97,15 @@ class TrackingNode(Node):
 
     def on_timer(self) -> None:
         self.rate_meter.tick()
-        now_ns = self.get_clock().now().nanoseconds
-        if self.next_step_ns is None or now_ns < self.next_step_ns - 2 * self.period_ns:
-            self.next_step_ns = now_ns  # first call, or the (sim) clock went backwards
-        steps = 0
-        while self.next_step_ns <= now_ns and steps < self.max_catch_up:
-            self.run_step(self.next_step_ns)
-            self.next_step_ns += self.period_ns
-            steps += 1
-        self.late_steps += max(0, steps - 1)
-        if self.next_step_ns <= now_ns:  # hopelessly behind (stalled process, clock jump)
-            missed = (now_ns - self.next_step_ns) // self.period_ns + 1
-            self.skipped_steps += int(missed)
-            self.next_step_ns += int(missed) * self.period_ns
+        for t_ns in self.scheduler.due(self.get_clock().now().nanoseconds):
+            self.run_step(t_ns)
 
     def run_step(self, t_ns: int) -> None:
         """One loop step at node-clock time t_ns; publishes the bones stamped t_ns."""
         was_holding = self.loop.holding
         t0 = time.perf_counter()
         poses = self.loop.step(t_ns * 1e-9)
-        self.step_ms.append(1e3 * (time.perf_counter() - t0))
-        self.step_count += 1
+        self.step_ms.add(1e3 * (time.perf_counter() - t0))
         if self.loop.holding and not was_holding:
             self.get_logger().warn(f"no valid tracker frame for {self.loop.tracker_timeout:.3f} s: holding the last target")
         if poses is None or not np.all(np.isfinite(poses)):
@@ -132,18 +116,19 @@ class TrackingNode(Node):
     def collect_diagnostics(self):
         now = self.now_s()
         stats = self.rate_meter.stats()
-        steps = np.asarray(self.step_ms) if self.step_ms else np.full(1, np.nan)
         adapter = self.loop.adapter
         since = self.loop.time_since_tracker(now)
         mark_t, mark_steps = self._diag_mark
         wall = time.monotonic()
-        self._diag_mark = (wall, self.step_count)
+        self._diag_mark = (wall, self.step_ms.count)
         values = {
-            "rate_hz": (self.step_count - mark_steps) / (wall - mark_t) if wall > mark_t else 0.0,
+            "rate_hz": (self.step_ms.count - mark_steps) / (wall - mark_t) if wall > mark_t else 0.0,
             "timer_rate_hz": stats["rate_hz"], "period_p50_ms": stats["period_p50_ms"],
             "period_p99_ms": stats["period_p99_ms"], "jitter_p99_ms": stats["jitter_p99_ms"],
-            "step_ms_p50": float(np.median(steps)), "step_ms_p99": float(np.percentile(steps, 99)),
-            "published": self.published, "late_steps": self.late_steps, "skipped_steps": self.skipped_steps,
+            "step_ms_p50": self.step_ms.median(), "step_ms_p99": self.step_ms.percentile(99),
+            "step_ms_max": self.step_ms.max(),
+            "published": self.published, "late_steps": self.scheduler.late_steps,
+            "skipped_steps": self.scheduler.skipped_steps,
             "frames_accepted": adapter.accepted,
             "frames_rejected": sum(adapter.rejected.values()),
             **{f"rejected_{reason}": n for reason, n in adapter.rejected.items()},

@@ -19,12 +19,15 @@ from softhand_sim.ros import msgs as rm
 from softhand_sim.ros.common import LATEST_QOS, PUB_QOS, DiagnosticsPublisher, RejectionLog, RateMeter, fail, run_node, split_cli
 from softhand_sim.ros.params import declare_node_params
 from softhand_sim.scene import SceneError, load_scene
+from softhand_sim.timing import FixedRateScheduler, StepStats
 
 from softhand_world.world import World, WorldConfig
 
 NODE_NAME = "world_node"
 REJECT_LOG_PERIOD = 2.0   # [s] at most one log line per rejection reason per period
 MAX_CATCH_UP_STEPS = 4    # engine steps per timer tick when the timer fell behind the clock
+CLOCK_BACK_S = 1.0        # [s] a clock this far behind the engine restarts it at the clock (bag restart)
+DIAG_WINDOW = 1000        # engine steps in the /diagnostics step-time statistics
 
 
 def build_parser():
@@ -63,8 +66,12 @@ class WorldNode(Node):
             f"coupling (kx, ktheta) per object {self.world.stiffness.round(4).tolist()}")
         self.rejections = RejectionLog(self.get_logger(), REJECT_LOG_PERIOD)
         self.meter = RateMeter()
-        self.step_ms = []
-        self.late_steps = 0
+        self.step_ms = StepStats(window=DIAG_WINDOW)  # [ms] per engine step
+        # Engine step k ends at scheduler time k: the first one at start + dt. late_resyncs in
+        # /diagnostics counts the times it fell more than MAX_CATCH_UP_STEPS behind and skipped ahead.
+        self.scheduler = FixedRateScheduler(p["engine_rate"], max_catch_up=MAX_CATCH_UP_STEPS,
+                                            clock_back_ns=int(CLOCK_BACK_S * 1e9),
+                                            first_due_ns=int(round((self.world.time + self.world.dt) * 1e9)))
         self.pub_states = self.create_publisher(MultiDOFJointTrajectory, "/world/object_states", PUB_QOS)
         self.pub_markers = self.create_publisher(MarkerArray, "/world/markers", PUB_QOS)
         self.create_subscription(MultiDOFJointTrajectory, "/hand/object_states", self.on_hand_objects, LATEST_QOS)
@@ -98,22 +105,18 @@ class WorldNode(Node):
 
     # -------------------------------------------------------------------- the step
     def on_timer(self):
-        now = self.now_s()
-        if now < self.world.time - 1.0:  # the clock jumped back (bag restart, /clock reset)
-            self.world.set_time(now)
-        steps = 0
-        while self.world.time + self.world.dt <= now + 1e-9 and steps < MAX_CATCH_UP_STEPS:
+        dt = self.world.dt
+        for t_end_ns in self.scheduler.due(self.get_clock().now().nanoseconds):
+            t_end = t_end_ns * 1e-9
+            if abs(self.world.time + dt - t_end) > 0.5 * dt:  # the schedule skipped ahead or restarted
+                self.world.set_time(t_end - dt)  # (clock jump, bag restart, /clock reset)
             t0 = time.perf_counter()
             self.world.step()
-            self.step_ms.append(1e3 * (time.perf_counter() - t0))
+            self.step_ms.add(1e3 * (time.perf_counter() - t0))
             self.meter.tick()
             s = self.world.states()
             self.pub_states.publish(rm.object_states_from_numpy(s.names, s.pose, s.twist, s.accel,
                                                                 rm.stamp_from_seconds(s.stamp)))
-            steps += 1
-        if self.world.time + self.world.dt <= now + 1e-9:  # still behind: do not chase forever
-            self.late_steps += 1
-            self.world.set_time(now)
 
     def on_markers(self):
         s = self.world.states()
@@ -122,19 +125,17 @@ class WorldNode(Node):
         self.pub_markers.publish(rm.scene_markers(self.scene.objects, rm.stamp_from_seconds(s.stamp), poses=poses))
 
     def collect_diagnostics(self):
-        steps = np.asarray(self.step_ms[-1000:])
-        self.step_ms = self.step_ms[-1000:]
         status = self.world.copy_status()
         coupled = sorted(n for n, v in status.items() if v == "coupled")
         stale = sorted(n for n, v in status.items() if v == "stale")
         values = {
             "engine_rate_hz": self.meter.stats()["rate_hz"],
-            "step_ms_p50": float(np.median(steps)) if steps.size else float("nan"),
-            "step_ms_p99": float(np.percentile(steps, 99)) if steps.size else float("nan"),
+            "step_ms_p50": self.step_ms.median(), "step_ms_p99": self.step_ms.percentile(99),
+            "step_ms_max": self.step_ms.max(),
             "engine_time": self.world.time,
             "coupled_objects": ",".join(coupled),
             "stale_copies": ",".join(stale),
-            "late_resyncs": self.late_steps,
+            "late_resyncs": self.scheduler.resyncs,
             **{f"rejected_{k}": v for k, v in self.rejections.counts.items()},
         }
         level = "warn" if stale or self.rejections.counts else "ok"
