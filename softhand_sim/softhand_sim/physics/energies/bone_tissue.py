@@ -11,8 +11,6 @@ to the gap times k, small because the coupling is stiff). Rotation perturbation 
 import numpy as np
 from numba import njit
 
-from softhand_sim.physics.rotations import quat_to_matrix
-
 
 @njit(cache=True)
 def add_all(x, body_x, body_q, tets, sample_tet, sample_body, sample_r, sample_bary, sample_k,
