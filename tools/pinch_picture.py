@@ -27,9 +27,9 @@ def main(argv=None):
     asset = handmodel.load_or_build_hand()
     script = cs.PinchLift(asset)
     model = build_model(asset, cs.sim_node_solver_params(), objects=[script.ball])
-    solver = Solver(model)
-    state = model.initial_state()
-    system = script.attach(solver, state, asset)
+    solver = Solver(model, contacts=script.contact_system(model, asset))
+    state, control = model.initial_state(), model.control()
+    system = script.attach(solver, state, control)
     keys = {0.0: "open", script.T_CLOSE + 0.2: "pinched", script.T_LIFT: "lifted 10 cm",
             script.T_HOLD - DT: "held 5 s", script.T_HOLD + 0.3: "opening: it falls"}
     key_steps = {int(round(t / DT)): title for t, title in keys.items()}
@@ -42,8 +42,8 @@ def main(argv=None):
             frames.append(skin.copy())
             objects.append([(script.ball.shape, script.ball.dims, ball_pose)])
             titles.append(f"t = {k * DT:.1f} s: {key_steps[k]} ({system.count} contacts)")
-        script.drive(solver, k * DT, DT)
-        solver.step(state, DT)
+        script.drive(model, control, k * DT, DT)
+        solver.step(state, control, DT)
     render_frames(frames, asset.skin_triangles, args.out, objects, view=tuple(args.view), titles=titles,
                   panel_px=(320, 300), same_scale=True)  # one scale: the lift and the fall show
     print(f"wrote {args.out}")

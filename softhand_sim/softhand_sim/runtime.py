@@ -1,12 +1,17 @@
 """The full simulation as sim_node runs it, without ROS: hand + objects + contact + copies + guard.
 
-SimRuntime owns one Solver (one Newton step + PCG per step, solver.py), its contact system
-(contact.py), the engine copies of the dynamic objects (coupling.ObjectCopy, Sect. 3.7) and the
-divergence guard. sim_node only converts messages to the arrays this class takes and returns.
+SimRuntime owns one Solver (one Newton step + PCG per step, physics/solver.py) with its contact
+system (physics/contact/detection.py), the step inputs (physics/control.Control), the engine
+copies of the dynamic objects (coupling.ObjectCopy, Sect. 3.7) and the divergence guard. sim_node
+only converts messages to the arrays this class takes and returns.
+
+This is the input boundary: bone targets are validated and normalised here (set_bone_targets),
+object copies in ObjectCopy.update (set_object_copies); the physics below trusts its inputs.
 
 Timeline of a step at time t: bone targets = the latest intermediate bones (held between
 updates, Sect. 3.6); object targets = the engine copies extrapolated to t + dt (the end of the
-step, where the implicit step evaluates the coupling); solver.step; guard; outputs.
+step, where the implicit step evaluates the coupling); solver.step(state, control, dt); guard;
+outputs.
 """
 from __future__ import annotations
 
@@ -15,6 +20,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from softhand_sim.physics.contact import detection as contact_mod
+from softhand_sim.physics.control import Control
 from softhand_sim.physics.coupling import ObjectCopy, limit_coupling_stiffness
 from softhand_sim.physics.coupling import warm_up as coupling_warm_up
 from softhand_sim.handmodel import load_or_build_hand
@@ -65,10 +71,11 @@ class SimRuntime:
         self.objects = list(self.scene.dynamic_objects)
         self.object_names = [o.name for o in self.objects]
         self.model = build_model(self.asset, params, self.objects)
-        self.solver = Solver(self.model)
-        self.contacts = contact_mod.attach(self.solver, self.scene, self.asset, kn=params["contact_kn"],
-                                           kf=params["contact_kf"])
+        self.contacts = contact_mod.build_contact_system(self.model, self.scene, self.asset,
+                                                         kn=params["contact_kn"], kf=params["contact_kf"])
+        self.solver = Solver(self.model, contacts=self.contacts)
         self.state = State.at_rest(self.model)
+        self.control = Control.at_rest(self.model)
         self.good_state = self.state.copy()
         nb = self.model.bone_count
         # Same capped stiffness as the world side (both must use identical values, coupling.py).
@@ -141,7 +148,7 @@ class SimRuntime:
         poses[:, 3:] /= norms[:, None]
         self.bone_targets = poses
         self.bone_target_stamp = stamp
-        self.solver.set_bone_targets(poses)
+        self.control.set_bone_targets(self.model, poses)
         if not self.placed:
             self.place_hand(poses[0])
 
@@ -152,17 +159,16 @@ class SimRuntime:
         On a fresh checkout the first step compiles for about a minute: a node that published
         before this would simulate nothing while its peers ran on.
         """
-        saved = (self.state.copy(), self.good_state.copy(), self.bone_targets, self.placed,
-                 self.steps, self._prev_body_v.copy(), self.object_targets.copy())
+        saved = (self.state.copy(), self.good_state.copy(), self.control.copy(), self.bone_targets,
+                 self.placed, self.steps, self._prev_body_v.copy(), self.object_targets.copy())
         self.set_bone_targets(self.model.body_rest_pose[:self.model.bone_count])
         self.step(dt, 0.0)
         self.display_mesh()
         coupling_warm_up()
-        (self.state, self.good_state, self.bone_targets, self.placed, self.steps, self._prev_body_v,
-         self.object_targets) = saved
+        (self.state, self.good_state, self.control, self.bone_targets, self.placed, self.steps,
+         self._prev_body_v, self.object_targets) = saved
         self.contacts.reset()
         self.rejected_steps = 0
-        self.solver.set_bone_targets(self.model.body_rest_pose[:self.model.bone_count])
 
     def place_hand(self, palm_pose):
         """Teleport the whole hand rigidly so that its palm is at `palm_pose` (at rest otherwise)."""
@@ -206,7 +212,8 @@ class SimRuntime:
             else:
                 self.object_targets[i] = copy.target(t + dt)[0]
         if len(self.copies):
-            self.solver.set_object_targets(self.object_targets, kx=self.object_kx, ktheta=self.object_ktheta)
+            self.control.set_object_targets(self.model, self.object_targets, kx=self.object_kx,
+                                            ktheta=self.object_ktheta)
 
     def step(self, dt, t):
         """Advance by dt from time t; returns StepOutput, or None while no bone target arrived."""
@@ -215,7 +222,7 @@ class SimRuntime:
         nb = self.model.bone_count
         self.last_t = t
         self._update_object_targets(t, dt)
-        stats = self.solver.step(self.state, dt)
+        stats = self.solver.step(self.state, self.control, dt)
         self.steps += 1
         warning = self._guard(stats)
         rejected = bool(warning)

@@ -21,10 +21,10 @@ G = 9.81
 def _block(tan_theta, mu=MU):
     model = build_model(box_asset((0.04, 0.04, 0.02), (2, 2, 1)),
                         {"cg_tolerance": 1e-8, "cg_max_iterations": 500, "gravity_tissue": True})
-    solver = Solver(model)
+    system = contact.build_contact_system(model, Scene(0.0, mu, ()), kn=3.0e7, kf=1.5e7)
+    solver = Solver(model, contacts=system)
     theta = np.arctan(tan_theta)
     solver.gravity[:] = G * np.array([np.sin(theta), 0.0, -np.cos(theta)])
-    system = contact.attach(solver, Scene(0.0, mu, ()), kn=3.0e7, kf=1.5e7)
     return model, solver, system, model.initial_state()
 
 
@@ -34,17 +34,17 @@ def _com(model, state):
 
 def _run(tan_theta, seconds, cone_log=None):
     model, solver, system, state = _block(tan_theta)
-    if cone_log is not None:  # runs right after the contact hook's anchor update, before the solve
-        def check(solver_, st, dt):
-            out = system.output(st.node_x, st.body_x, st.body_q, cap_friction=False)
+    control = model.control()
+    com = []
+    for _ in range(int(round(seconds / DT))):
+        before = state.copy()
+        solver.step(state, control, DT)
+        com.append(_com(model, state))
+        if cone_log is not None:  # the step's anchors (collide stage) at the positions it saw
+            out = system.output(before.node_x, before.body_x, before.body_q, cap_friction=False)
             fn = np.linalg.norm(out["force_normal"], axis=1)
             ff = np.linalg.norm(out["force_friction"], axis=1)
             cone_log.append(np.max(ff - MU * fn, initial=0.0))
-        solver.pre_step_hooks.append(check)
-    com = []
-    for _ in range(int(round(seconds / DT))):
-        solver.step(state, DT)
-        com.append(_com(model, state))
     return model, system, state, np.array(com)
 
 

@@ -57,9 +57,9 @@ def test_squeeze_with_tracked_hand_3cm_inside_ball_stays_bounded(asset):
     centre = ball_under_palm(asset, press=0.0)
     ball = dataclasses.replace(ball_object(centre), static=True, mass=0.0)
     model = build_model(asset, HAND_PARAMS)
-    solver = Solver(model)
-    system = contact.attach(solver, Scene(-1.0, 0.5, (ball,)), asset)
-    state = model.initial_state()
+    system = contact.build_contact_system(model, Scene(-1.0, 0.5, (ball,)), asset)
+    solver = Solver(model, contacts=system)
+    state, control = model.initial_state(), model.control()
     rest = model.body_rest_pose.copy()
     v0 = _min_tet_volume(model, state.node_x)
     peak_total, peak_point, min_vol = 0.0, 0.0, np.inf
@@ -67,8 +67,8 @@ def test_squeeze_with_tracked_hand_3cm_inside_ball_stays_bounded(asset):
         ramp = min(1.0, k * DT / 0.5)
         tgt = flexed_targets(rest, 0.5 * ramp)
         tgt[:, 2] -= 0.03 * ramp
-        solver.set_bone_targets(tgt)
-        solver.step(state, DT)
+        control.set_bone_targets(model, tgt)
+        solver.step(state, control, DT)
         out = system.output(state.node_x, state.body_x, state.body_q)
         f = np.linalg.norm(out["forces"], axis=1)
         peak_point = max(peak_point, f.max(initial=0.0))
@@ -102,9 +102,10 @@ def test_cupped_hand_lifts_holds_and_drops_ball(asset):
     R_up = quat_to_matrix(up)
     ball = ball_object(R_up @ ball_under_palm(asset, press=0.002))
     model = build_model(asset, HAND_PARAMS, objects=[ball])
-    solver = Solver(model)
-    solver.set_object_targets(ball.pose[None])
-    system = contact.attach(solver, Scene(-1.0, 0.5, (ball,)), asset)
+    system = contact.build_contact_system(model, Scene(-1.0, 0.5, (ball,)), asset)
+    solver = Solver(model, contacts=system)
+    control = model.control()
+    control.set_object_targets(model, ball.pose[None])
     state = model.initial_state()
     rest = model.body_rest_pose[:model.bone_count]
     state.node_x[:] = state.node_x @ R_up.T
@@ -117,7 +118,7 @@ def test_cupped_hand_lifts_holds_and_drops_ball(asset):
     for k in range(int(round(t_drop / DT))):
         t = k * DT
         if abs(t - t_close) < 0.5 * DT:
-            solver.set_object_targets(ball.pose[None], kx=0.0, ktheta=0.0)  # the world lets go
+            control.set_object_targets(model, ball.pose[None], kx=0.0, ktheta=0.0)  # the world lets go
         tgt = flexed_targets(rest, 0.5 * min(1.0, t / t_close), fingers)
         if t >= t_hold:  # roll palm down about the wrist's x axis
             s = min(1.0, (t - t_hold) / 0.5)
@@ -125,8 +126,8 @@ def test_cupped_hand_lifts_holds_and_drops_ball(asset):
         else:
             tgt = _roll(tgt, up)
         tgt[:, 2] += 0.10 * np.clip((t - t_settle) / (t_lift - t_settle), 0.0, 1.0)
-        solver.set_bone_targets(tgt)
-        solver.step(state, DT)
+        control.set_bone_targets(model, tgt)
+        solver.step(state, control, DT)
         R_palm = quat_to_matrix(state.body_q[0])
         if t_lift + 0.5 <= t < t_hold:
             rel.append(R_palm.T @ (state.body_x[-1] - state.body_pose[0, :3]))

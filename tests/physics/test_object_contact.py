@@ -25,15 +25,15 @@ def test_block_between_static_table_and_dynamic_ball():
     scene = Scene(0.0, 0.5, (table, ball))
     asset = box_asset((0.04, 0.04, 0.02), (4, 4, 2))
     asset.tet_nodes = asset.tet_nodes + np.array([0.0, 0.0, 0.10])
-    model = build_model(asset, {"cg_tolerance": 1e-8, "cg_max_iterations": 500, "gravity_tissue": True},
-                        objects=[ball])
-    solver = Solver(model)
+    model = build_model(asset, {"cg_tolerance": 1e-8, "cg_max_iterations": 500, "gravity_tissue": True}, objects=[ball])
+    system = contact.build_contact_system(model, scene)
+    solver = Solver(model, contacts=system)
+    control = model.control()
     # no pull toward an engine copy, only keep the ball from rolling off the block's apex
-    solver.set_object_targets(np.array([ball.pose]), kx=0.0, ktheta=70.0)
-    system = contact.attach(solver, scene)
+    control.set_object_targets(model, np.array([ball.pose]), kx=0.0, ktheta=70.0)
     state = model.initial_state()
     for _ in range(300):
-        solver.step(state, 1.0 / 200.0)
+        solver.step(state, control, 1.0 / 200.0)
     out = system.output(state.node_x, state.body_x, state.body_q)
     names = system.model.object_names
     on_table = out["objects"] == names.index("table")

@@ -51,9 +51,9 @@ def run_pinch(asset, skin, friction):
     """Simulate PinchLift to its end; returns the measurements of the hold and the final state."""
     script = cs.PinchLift(asset, friction=friction)
     model = build_model(asset, cs.sim_node_solver_params(), objects=[script.ball])
-    solver = Solver(model)
-    state = model.initial_state()
-    system = script.attach(solver, state, asset)
+    solver = Solver(model, contacts=script.contact_system(model, asset))
+    state, control = model.initial_state(), model.control()
+    system = script.attach(solver, state, control)
     system.collide(state.node_x, state.body_x, state.body_q)
     open_contacts = system.count
     pinch_bones = set(cs.PINCH_DIGITS[0] + cs.PINCH_DIGITS[1])
@@ -64,8 +64,8 @@ def run_pinch(asset, skin, friction):
         t = k * DT
         if abs(t - script.T_START) < 0.5 * DT:
             m["z_start"] = state.body_x[-1, 2]  # the pads carry the ball; the lift begins
-        script.drive(solver, t, DT)
-        solver.step(state, DT)
+        script.drive(model, control, t, DT)
+        solver.step(state, control, DT)
         if script.T_LIFT <= t < script.T_HOLD:
             out = system.output(state.node_x, state.body_x, state.body_q)
             bones = skin.bone_of[out["point"]]

@@ -1,4 +1,6 @@
-"""Eq. 14 rigid coupling: gradient and Hessian against finite differences under q <- exp(delta) q."""
+"""Eq. 14 rigid coupling (energies/rigid_coupling.py, the one implementation the solver, the world
+and the tracking loop use): gradient and Hessian against finite differences under q <- exp(delta) q,
+and the solver's assembly of it."""
 import numpy as np
 import pytest
 
@@ -18,76 +20,93 @@ def _perturb(x, q, i, h):
 
 
 def _pair(rng, angle):
-    xa, xb = rng.normal(size=3) * 0.05, rng.normal(size=3) * 0.05
-    qa = quat_normalize(rng.normal(size=4))
+    """A body (x, q) and a target (x_t, q_t) rotated by `angle` [rad] from it."""
+    x, xt = rng.normal(size=3) * 0.05, rng.normal(size=3) * 0.05
+    q = quat_normalize(rng.normal(size=4))
     axis = rng.normal(size=3)
-    qb = quat_mul(quat_exp(-angle * axis / np.linalg.norm(axis)), qa)
-    return xa, qa, xb, qb
+    qt = quat_mul(quat_exp(-angle * axis / np.linalg.norm(axis)), q)
+    return x, q, xt, qt
 
 
-def _energy_perturbed(xa, qa, xb, qb, kx, kt, i, h):
-    if i < 6:
-        xa, qa = _perturb(xa, qa, i, h)
-    else:
-        xb, qb = _perturb(xb, qb, i - 6, h)
-    return rc.pair_energy(xa, qa, xb, qb, kx, kt)
+def _energy(x, q, xt, qt, kx, kt):
+    return rc.target_energy_gradient(x, q, xt, qt, kx, kt, np.zeros(6))
+
+
+def _gradient(x, q, xt, qt, kx, kt):
+    g = np.zeros(6)
+    rc.target_energy_gradient(x, q, xt, qt, kx, kt, g)
+    return g
 
 
 @pytest.mark.parametrize("angle", [0.01, 0.5, 2.0, 3.0])
 def test_gradient_matches_central_differences(angle):
-    """The analytic Eq. 14 gradient equals central differences of the energy for large and small
-    relative rotations (relative error < 1e-6)."""
+    """The analytic Eq. 14 gradient w.r.t. the body's (x, theta) equals central differences of the
+    energy for large and small relative rotations (relative error < 1e-6)."""
     rng = np.random.default_rng(1)
-    xa, qa, xb, qb = _pair(rng, angle)
+    x, q, xt, qt = _pair(rng, angle)
     kx, kt = 170.0, 70.0
-    g = rc.pair_gradient(xa, qa, xb, qb, kx, kt)
+    g = _gradient(x, q, xt, qt, kx, kt)
     h = 1e-6
-    fd = np.array([(_energy_perturbed(xa, qa, xb, qb, kx, kt, i, h)
-                    - _energy_perturbed(xa, qa, xb, qb, kx, kt, i, -h)) / (2 * h) for i in range(12)])
+    fd = np.array([(_energy(*_perturb(x, q, i, h), xt, qt, kx, kt)
+                    - _energy(*_perturb(x, q, i, -h), xt, qt, kx, kt)) / (2 * h) for i in range(6)])
     assert np.linalg.norm(g) > 1.0
     assert np.linalg.norm(g - fd) <= 1e-6 * np.linalg.norm(g)
 
 
 @pytest.mark.parametrize("angle", [1e-3, 0.3, 1.0])
 def test_hessian_is_gauss_newton_of_gradient(angle):
-    """The Hessian's translation blocks equal the FD derivative of the gradient exactly; its
-    rotation diagonal blocks equal the symmetric part of that derivative up to the stated t^2/12 gap
-    (cross blocks up to t/2, the skew part),
-    and the Hessian is symmetric positive semidefinite."""
+    """The Hessian's translation block equals the FD derivative of the gradient; its rotation block
+    equals the symmetric part of that derivative up to the stated t^2/12 gap and misses only the
+    skew part (|.| <= t/2); it is symmetric positive definite."""
     rng = np.random.default_rng(2)
-    xa, qa, xb, qb = _pair(rng, angle)
+    x, q, xt, qt = _pair(rng, angle)
     kx, kt = 50.0, 200.0
-    H = rc.pair_hessian(kx, kt)
+    H = rc.hessian(kx, kt)
     h = 1e-6
-    J = np.zeros((12, 12))
-    for j in range(12):
-        def grad_at(s):
-            a_x, a_q, b_x, b_q = xa, qa, xb, qb
-            if j < 6:
-                a_x, a_q = _perturb(xa, qa, j, s)
-            else:
-                b_x, b_q = _perturb(xb, qb, j - 6, s)
-            return rc.pair_gradient(a_x, a_q, b_x, b_q, kx, kt)
-        J[:, j] = (grad_at(h) - grad_at(-h)) / (2 * h)
-    tr = np.r_[0:3, 6:9]
-    rot = np.r_[3:6, 9:12]
-    assert np.allclose(H[np.ix_(tr, tr)], J[np.ix_(tr, tr)], rtol=1e-6, atol=1e-6 * kx)
+    J = np.zeros((6, 6))
+    for j in range(6):
+        J[:, j] = (_gradient(*_perturb(x, q, j, h), xt, qt, kx, kt)
+                   - _gradient(*_perturb(x, q, j, -h), xt, qt, kx, kt)) / (2 * h)
+    assert np.allclose(H[:3, :3], J[:3, :3], rtol=1e-6, atol=1e-6 * kx)
+    assert np.abs(J[:3, 3:]).max() <= 1e-6 * kx and np.abs(J[3:, :3]).max() <= 1e-6 * kt
     Jsym = 0.5 * (J + J.T)
-    ra, rb = np.r_[3:6], np.r_[9:12]
-    diag_gap = max(np.abs(H[np.ix_(r, r)] - Jsym[np.ix_(r, r)]).max() for r in (ra, rb)) / kt
-    assert diag_gap <= angle ** 2 / 12 * 1.05 + 1e-6
-    # cross blocks keep the skew part 1/2 [dtheta]x that no symmetric matrix can represent
-    cross_gap = np.abs(H[np.ix_(ra, rb)] - Jsym[np.ix_(ra, rb)]).max() / kt
-    assert cross_gap <= angle / 2 * 1.05 + 1e-6
+    assert np.abs(H[3:, 3:] - Jsym[3:, 3:]).max() / kt <= angle ** 2 / 12 * 1.05 + 1e-6
+    assert np.abs(0.5 * (J - J.T)[3:, 3:]).max() / kt <= angle / 2 * 1.05 + 1e-6
     assert np.allclose(H, H.T)
-    assert np.linalg.eigvalsh(H).min() >= -1e-9
+    assert np.linalg.eigvalsh(H).min() > 0.0
 
 
-def test_target_coupling_matches_pair():
-    """Body-to-fixed-target coupling equals the pair energy/gradient with the target as body b."""
+def test_pose_forms_are_the_stencil():
+    """pose_energy / pose_gradient (the world's entry, COM poses (7,)) are the local stencil."""
     rng = np.random.default_rng(3)
-    xa, qa, xb, qb = _pair(rng, 0.7)
-    g6 = np.zeros(6)
-    e = rc.target_energy_gradient(xa, qa, xb, qb, 30.0, 9.0, g6)
-    assert e == pytest.approx(rc.pair_energy(xa, qa, xb, qb, 30.0, 9.0))
-    assert np.allclose(g6, rc.pair_gradient(xa, qa, xb, qb, 30.0, 9.0)[:6])
+    x, q, xt, qt = _pair(rng, 0.7)
+    pose, target = np.r_[x, q], np.r_[xt, qt]
+    assert rc.pose_energy(pose, target, 30.0, 9.0) == _energy(x, q, xt, qt, 30.0, 9.0)
+    np.testing.assert_array_equal(rc.pose_gradient(pose, target, 30.0, 9.0),
+                                  _gradient(x, q, xt, qt, 30.0, 9.0))
+
+
+def test_solver_assembly_sums_the_stencil_per_body():
+    """add_all (the solver's Eq. 14 term) = value + add_gradient + add_hessian = the per-body
+    stencil written at body_dof0 + 6 b and the body's diagonal block."""
+    rng = np.random.default_rng(4)
+    B, dof0 = 3, 6
+    pairs = [_pair(rng, a) for a in (0.2, 1.0, 2.5)]
+    bx, bq, tx, tq = (np.array([p[i] for p in pairs]) for i in range(4))
+    kx, kt = rng.uniform(10, 200, B), rng.uniform(1, 100, B)
+    n = dof0 + 6 * B
+    slots = np.array([(dof0 + 6 * b + np.arange(6))[:, None] * n + (dof0 + 6 * b + np.arange(6))[None, :]
+                      for b in range(B)], np.int32)
+    grad, vals = np.zeros(n), np.zeros(n * n)
+    e = rc.add_all(bx, bq, tx, tq, kx, kt, dof0, grad, slots, vals)
+    assert e == pytest.approx(rc.value(bx, bq, tx, tq, kx, kt), rel=1e-15)
+    g_ref, H_ref = np.zeros(n), np.zeros((n, n))
+    e_ref = 0.0
+    for b in range(B):
+        o = slice(dof0 + 6 * b, dof0 + 6 * b + 6)
+        e_ref += _energy(bx[b], bq[b], tx[b], tq[b], kx[b], kt[b])
+        g_ref[o] = _gradient(bx[b], bq[b], tx[b], tq[b], kx[b], kt[b])
+        H_ref[o, o] = rc.hessian(kx[b], kt[b])
+    assert e == pytest.approx(e_ref, rel=1e-15)
+    np.testing.assert_array_equal(grad, g_ref)
+    np.testing.assert_array_equal(vals.reshape(n, n), H_ref)

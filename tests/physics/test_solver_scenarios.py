@@ -13,18 +13,6 @@ E_YOUNG = 1e5
 UNDER_GRAVITY = {"gravity_bones": True, "gravity_tissue": True}  # sim_node's defaults leave the hand weightless
 
 
-class ConstantForce:
-    """Per-step term U = -f . q on chosen dofs (a dead load): the solver's extension API."""
-
-    def __init__(self, dofs, force):
-        self.dofs = np.asarray(dofs)
-        self.force = np.asarray(force, float)
-
-    def add_all(self, solver, state, grad, values):
-        grad[self.dofs] -= self.force
-        return 0.0  # the load's potential is not needed by these tests' claims
-
-
 def static_cantilever(cells, L=0.1, h=0.01, tip_force=2.5e-4):
     a = box_asset((L, h, h), cells)
     m = build_model(a, {"nonlinear_k": 0.0, "gravity_tissue": False})
@@ -32,11 +20,12 @@ def static_cantilever(cells, L=0.1, h=0.01, tip_force=2.5e-4):
     m.node_mass[clamped] = 1e12  # clamps: an immovable mass (no Dirichlet rows needed)
     tip = np.flatnonzero(m.node_rest[:, 0] > L - 1e-9)
     sol = Solver(m)
-    sol.terms.append(ConstantForce(3 * tip + 2, np.full(len(tip), -tip_force / len(tip))))
+    control = m.control()
+    control.node_force[tip, 2] = -tip_force / len(tip)  # a dead load on the tip nodes
     s = m.initial_state()
     for _ in range(8):  # dt >> every period: each step is a Newton step on the static problem
         s.v[:] = 0.0
-        sol.step(s, 1.0)
+        sol.step(s, control, 1.0)
     defl = -(s.node_x[tip, 2] - m.node_rest[tip, 2]).mean()
     I = h ** 4 / 12
     return defl / (tip_force * L ** 3 / (3 * E_YOUNG * I)), len(m.tets)
@@ -74,10 +63,11 @@ def squeeze(nl_k, force=20.0, steps=150):
     m.body_target_ktheta[:] = 0.0
     m.node_mass[X[:, 2] < 1e-9] = 1e12
     sol = Solver(m)
-    sol.terms.append(ConstantForce([m.body_dof0 + 2], [-force]))
+    control = m.control()
+    control.body_force[0, 2] = -force  # the plate pressed down
     s = m.initial_state()
     for _ in range(steps):
-        sol.step(s, 0.01)
+        sol.step(s, control, 0.01)
     Xt = s.node_x[tets]
     det = np.linalg.det(np.stack([Xt[:, 1] - Xt[:, 0], Xt[:, 2] - Xt[:, 0], Xt[:, 3] - Xt[:, 0]], 2))
     compression = 1.0 - s.node_x[top, 2].mean() / s_
@@ -117,11 +107,12 @@ def test_joint_gaps_below_1mm_under_gravity_and_fingertip_load(coarse_hand):
     index fingertip keeps every joint gap below 1 mm."""
     m = build_model(coarse_hand, UNDER_GRAVITY)
     sol = Solver(m)
-    sol.terms.append(ConstantForce([m.body_dof0 + 6 * 6 + 2], [-5.0]))  # index_distal, down
+    control = m.control()
+    control.body_force[6, 2] = -5.0  # index_distal, down
     s = m.initial_state()
     worst = 0.0
     for _ in range(200):
-        sol.step(s, 0.01)
+        sol.step(s, control, 0.01)
         worst = max(worst, joint_gaps(m, s).max())
     print("max joint gap [mm]:", worst * 1e3)
     assert np.all(np.isfinite(s.node_x))
@@ -134,7 +125,7 @@ def test_bones_track_random_targets_for_10000_steps(coarse_hand):
     times, median < 0.03 rad)."""
     m = build_model(coarse_hand)
     sol = Solver(m)
-    s = m.initial_state()
+    s, control = m.initial_state(), m.control()
     rng = np.random.default_rng(0)
     rest = m.body_rest_pose[:16].copy()
     freqs = rng.uniform(0.2, 1.0, size=4)
@@ -150,10 +141,10 @@ def test_bones_track_random_targets_for_10000_steps(coarse_hand):
         for b in range(4, 16):  # finger chains: proximal, intermediate, distal in a row
             depth = (b - 4) % 3 + 1
             tgt[b, 3:] = quat_mul(quat_exp(np.array([0.0, flex * depth / 3, 0.0])), rest[b, 3:])
-        sol.set_bone_targets(tgt)
-        st = sol.step(s, dt)
+        control.set_bone_targets(m, tgt)
+        st = sol.step(s, control, dt)
         if k % 50 == 0:
-            errs.append(max(np.linalg.norm(relative_rotvec(s.body_q[b], sol.target_q[b]))
+            errs.append(max(np.linalg.norm(relative_rotvec(s.body_q[b], control.target_q[b]))
                             for b in range(16)))
     assert np.all(np.isfinite(s.node_x)) and np.all(np.isfinite(s.body_q))
     errs = np.array(errs)
@@ -166,8 +157,8 @@ def test_cg_respects_cap_and_flags_it(coarse_hand):
     m = build_model(coarse_hand, {**UNDER_GRAVITY, "preconditioner": "jacobi", "cg_max_iterations": 5})
     sol = Solver(m)
     s = m.initial_state()
-    st = sol.step(s, 0.01)
+    st = sol.step(s, m.control(), 0.01)
     assert st.cg_iters == 5 and st.hit_cap
     m2 = build_model(coarse_hand, {**UNDER_GRAVITY, "preconditioner": "jacobi", "cg_max_iterations": 5000})
-    st2 = Solver(m2).step(m2.initial_state(), 0.01)
+    st2 = Solver(m2).step(m2.initial_state(), m2.control(), 0.01)
     assert not st2.hit_cap and st2.residual <= 1e-5 and st2.cg_iters <= 5000

@@ -2,7 +2,8 @@
 
 `HandSideObject` is a STAND-IN for the hand solver's instance of one object: a single rigid body
 stepped with the same scheme as the solver (backward Euler, one Newton iteration), coupled by
-Eq. 14 to the extrapolated engine copy (softhand_sim.physics.coupling, the shared implementation) and,
+Eq. 14 to the extrapolated engine copy (energies/rigid_coupling through softhand_sim.physics.coupling:
+the solver's gradient and Hessian) and,
 optionally, gripped by a spring toward a kinematic pose (standing in for the hand's contacts and
 the paper's elastic tracking coupling). `Channel` delivers copies with a fixed latency, as the
 ROS topics between the nodes would. `run_pair` steps the stand-in and a World at their own rates.
@@ -11,7 +12,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from softhand_sim.physics.coupling import ObjectCopy, coupling_energy, coupling_stiffness, coupling_wrench
+from softhand_sim.physics.coupling import ObjectCopy, coupling_wrench
+from softhand_sim.physics.energies import rigid_coupling
 from softhand_sim.physics.rotations import integrate_rotation, quat_to_matrix, relative_rotvec
 
 
@@ -53,12 +55,12 @@ class HandSideObject:
             target, _ = self.copy.target(t + dt)
             f, tq = coupling_wrench(self.pose, target, self.kx, self.ktheta)
             force, torque = force + f, torque + tq
-            hess += coupling_stiffness(self.pose, target, self.kx, self.ktheta)
+            hess += rigid_coupling.hessian(self.kx, self.ktheta)
         damp = np.zeros(6)
         if self.grip_pose is not None:
             f, tq = coupling_wrench(self.pose, self.grip_pose, self.grip_kx, self.grip_ktheta)
             force, torque = force + f, torque + tq
-            hess += coupling_stiffness(self.pose, self.grip_pose, self.grip_kx, self.grip_ktheta)
+            hess += rigid_coupling.hessian(self.grip_kx, self.grip_ktheta)
             damp[:3] = self.grip_damping
             force = force + self.grip_damping * self.grip_twist[:3]
         inertia = self.inertia_world()
@@ -142,7 +144,7 @@ def pair_energy(hand, world, name, kx, ktheta, gravity=0.0):
     r = quat_to_matrix(s.pose[i, 3:])
     w = s.twist[i, 3:]
     ke_world = 0.5 * obj.mass * s.twist[i, :3] @ s.twist[i, :3] + 0.5 * w @ (r @ obj.inertia_local @ r.T) @ w
-    spring = coupling_energy(hand.pose, s.pose[i], kx, ktheta)
+    spring = rigid_coupling.pose_energy(hand.pose, s.pose[i], kx, ktheta)
     pe = -gravity * obj.mass * (hand.pose[2] + s.pose[i, 2])
     return hand.kinetic_energy() + ke_world + spring + pe
 

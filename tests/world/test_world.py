@@ -7,7 +7,7 @@ hand solver's object instance, using the same softhand_sim.physics.coupling code
 import numpy as np
 import pytest
 
-from tests.support.tests/support/coupling_standin import HandSideObject, angle_between, pair_energy, run_pair
+from tests.support.coupling_standin import HandSideObject, angle_between, pair_energy, run_pair
 from softhand_sim.physics.rotations import quat_exp
 from softhand_sim.scene import Scene, SceneObject, load_scene, shape_inertia
 from softhand_world.world import World, WorldConfig

@@ -58,7 +58,7 @@ class _Free:
         self.asset = asset
         return ()
 
-    def __call__(self, solver, state):
+    def __call__(self, solver, state, control):
         a = self.asset
         lim = np.asarray(a.joint_limits, float)[:, 0, 1]
         amp = np.where(np.asarray(a.joint_type) == 1, 0.7, 0.4) * np.maximum(lim, 0.0)
@@ -66,21 +66,8 @@ class _Free:
         def update(k, t):
             s = 0.5 * (1.0 - np.cos(2.0 * np.pi * t))
             off = 0.02 * np.array([np.sin(t), np.cos(1.3 * t) - 1.0, 0.0])
-            solver.set_bone_targets(flexed_pose(a, s * amp, off))
+            control.set_bone_targets(solver.model, flexed_pose(a, s * amp, off))
         return update
-
-
-class _PadLoad:
-    """Dead load [N] spread over the fingertip pad nodes (U = -f . x): the `press` scenario."""
-
-    def __init__(self, pads):
-        self.dofs = np.concatenate([3 * p + 2 for p in pads])
-        self.share = np.concatenate([np.full(len(p), 1.0 / len(p)) for p in pads])
-        self.force = 0.0
-
-    def add_all(self, solver, state, grad, values):
-        grad[self.dofs] -= self.force * self.share
-        return 0.0
 
 
 class _Press:
@@ -94,12 +81,13 @@ class _Press:
         self.asset = asset
         return ()
 
-    def __call__(self, solver, state):
-        term = _PadLoad(fingertip_pad_nodes(self.asset))
-        solver.terms.append(term)
+    def __call__(self, solver, state, control):
+        pads = fingertip_pad_nodes(self.asset)
+        nodes = np.concatenate(pads)
+        share = np.concatenate([np.full(len(p), 1.0 / len(p)) for p in pads])
 
-        def update(k, t):
-            term.force = 5.0 * min(1.0, t / 0.2)
+        def update(k, t):  # the dead load (U = -f . x) on the pads, through the step's Control
+            control.node_force[nodes, 2] = 5.0 * min(1.0, t / 0.2) * share
         return update
 
 
@@ -117,19 +105,20 @@ def run(scenario, mesh, steps, preconditioner):
     model = build_model(asset, {**params, "preconditioner": preconditioner},
                         objects=objects(asset) if objects else ())
     t0 = time.perf_counter()
-    warm = Solver(model)  # compile every kernel once on a throwaway state
-    ws = model.initial_state()
-    SCENARIOS[scenario](warm, ws)(0, 0.0)
-    warm.step(ws, DT)
+    contacts = getattr(SCENARIOS[scenario], "contacts", lambda model: None)  # ... and contact
+    warm = Solver(model, contacts=contacts(model))  # compile every kernel once on a throwaway state
+    ws, wc = model.initial_state(), model.control()
+    SCENARIOS[scenario](warm, ws, wc)(0, 0.0)
+    warm.step(ws, wc, DT)
     compile_s = time.perf_counter() - t0
-    solver = Solver(model)
-    state = model.initial_state()
-    update = SCENARIOS[scenario](solver, state)
+    solver = Solver(model, contacts=contacts(model))
+    state, control = model.initial_state(), model.control()
+    update = SCENARIOS[scenario](solver, state, control)
     ms, setup, solve, iters, contacts, coll, caps, refac = [], [], [], [], [], [], 0, 0
     for k in range(steps):
         update(k, k * DT)
         t = time.perf_counter()
-        st = solver.step(state, DT)
+        st = solver.step(state, control, DT)
         ms.append((time.perf_counter() - t) * 1e3)
         setup.append(st.setup_ms)
         solve.append(st.solve_ms)

@@ -6,8 +6,10 @@ of the other side's state. This module is the one shared implementation of
 
 * the copy extrapolation of Sect. 3.7: before a step, the copy is moved from its stamp to the
   current time assuming constant linear and angular acceleration (`extrapolate_pose`);
-* the Eq. 14 coupling energy U = 1/2 kx |xa - xb|^2 + 1/2 ktheta |dtheta|^2 and the wrench it
-  puts on `a` (`coupling_wrench`), with its stiffness (`coupling_stiffness`) for implicit solvers;
+* the wrench that the Eq. 14 coupling U = 1/2 kx |xa - xb|^2 + 1/2 ktheta |dtheta|^2 puts on `a`
+  (`coupling_wrench`), and its backward-Euler form for an explicit engine
+  (`implicit_coupling_wrench`); both from energies/rigid_coupling.py, the one Eq. 14 of the hand
+  solver (gradient, and Hessian diag(kx I, ktheta I));
 * `ObjectCopy`, the latest copy of one object with its stamp, staleness check and extrapolation.
 
 Conventions: pose (7,) = [px py pz qx qy qz qw] [m, unit quaternion x y z w]; twist (6,) =
@@ -22,7 +24,7 @@ spring stays relaxed; the coupling transmits only what the other world adds (con
 hand, collisions in the engine). The price, inherent in the two-instance scheme, is that while the
 hand holds an object it carries the weight of both instances (2 m g) and the engine instance hangs
 m g / kx below the hand instance (5.8 mm for 0.1 kg at 170 N/m); with gravity on one side only,
-a freely moving coupled pair would fall with g / 2 instead. tests/test_coupling_*.py measure both.
+a freely moving coupled pair would fall with g / 2 instead. tests/world/test_world.py measures both.
 """
 from __future__ import annotations
 
@@ -31,13 +33,12 @@ import math
 import numpy as np
 from numba import njit
 
-from softhand_sim.physics.rotations import quat_exp, quat_mul, quat_normalize, relative_rotvec, skew
+from softhand_sim.physics.energies import rigid_coupling
+from softhand_sim.physics.rotations import quat_exp, quat_mul, quat_normalize
 
 # Paper Sect. 5.1: hand <-> engine object coupling stiffness.
 PAPER_KX = 170.0       # [N/m]
 PAPER_KTHETA = 70.0    # [N m/rad]
-
-_SMALL_ANGLE = 1e-6  # [rad] below it the series form of the SO(3) Jacobian inverse is used
 
 
 @njit(cache=True)
@@ -65,52 +66,15 @@ def extrapolate_pose(pose, twist, accel, stamp, t):
 
 
 @njit(cache=True)
-def coupling_energy(pose_a, pose_b, kx, ktheta):
-    """Eq. 14: 1/2 kx |xa - xb|^2 + 1/2 ktheta |dtheta|^2 [J]; kx [N/m], ktheta [N m/rad]."""
-    d = pose_a[0:3] - pose_b[0:3]
-    dtheta = relative_rotvec(pose_a[3:7].copy(), pose_b[3:7].copy())
-    return 0.5 * kx * (d @ d) + 0.5 * ktheta * (dtheta @ dtheta)
-
-
-@njit(cache=True)
 def coupling_wrench(pose_a, pose_b, kx, ktheta):
     """Force [N] and torque [N m] of Eq. 14 on body a, pulling it toward b (world frame, about a's COM).
 
-    force = -kx (xa - xb); torque = -ktheta dtheta. The torque is the exact negative gradient of
-    Eq. 14 for a world-frame rotation of a (qa <- exp(delta) qa): d|log(exp(delta) R)|^2/2 / d delta
-    = J_l^-T(dtheta) dtheta = dtheta, since dtheta is an eigenvector of the SO(3) Jacobian.
-    The reaction on b is the opposite wrench.
+    The negated gradient of energies/rigid_coupling (the one Eq. 14, as the hand solver uses it):
+    force = -kx (xa - xb); torque = -ktheta dtheta, the exact negative gradient for a world-frame
+    rotation of a (qa <- exp(delta) qa). The reaction on b is the opposite wrench.
     """
-    force = -kx * (pose_a[0:3] - pose_b[0:3])
-    torque = -ktheta * relative_rotvec(pose_a[3:7].copy(), pose_b[3:7].copy())
-    return force, torque
-
-
-@njit(cache=True)
-def so3_left_jacobian_inverse(phi):
-    """J_l^-1(phi) (3,3): d log(exp(delta) exp(phi)) / d delta at delta = 0."""
-    angle = math.sqrt(phi[0] * phi[0] + phi[1] * phi[1] + phi[2] * phi[2])
-    s = skew(phi)
-    if angle < _SMALL_ANGLE:
-        return np.eye(3) - 0.5 * s + (1.0 / 12.0) * (s @ s)
-    c = 1.0 / (angle * angle) - (1.0 + math.cos(angle)) / (2.0 * angle * math.sin(angle))
-    return np.eye(3) - 0.5 * s + c * (s @ s)
-
-
-@njit(cache=True)
-def coupling_stiffness(pose_a, pose_b, kx, ktheta):
-    """Hessian (6,6) of Eq. 14 w.r.t. [xa, world rotation of a], symmetrised (for implicit steps).
-
-    Linear block kx I; angular block ktheta sym(J_l^-1(dtheta)), which is positive definite for
-    |dtheta| < pi (ktheta I for small angles). Rows/cols 0..2 translation, 3..5 rotation.
-    """
-    h = np.zeros((6, 6))
-    for i in range(3):
-        h[i, i] = kx
-    dtheta = relative_rotvec(pose_a[3:7].copy(), pose_b[3:7].copy())
-    j = so3_left_jacobian_inverse(dtheta)
-    h[3:6, 3:6] = 0.5 * ktheta * (j + j.T)
-    return h
+    g = rigid_coupling.pose_gradient(pose_a, pose_b, kx, ktheta)
+    return -g[0:3], -g[3:6]
 
 
 def _finite(name, arr, shape):
@@ -225,17 +189,18 @@ def implicit_coupling_wrench(pose_a, twist_a, free_accel_a, pose_b_end, twist_b_
     with the inertia tensor (3,3, world axes) [kg m^2] and dtheta(q0, qb_end) + dt w1.
     Returns (force (3,) [N], torque (3,) [N m]) on a; twists are [v, w] (6,).
     """
+    grad = rigid_coupling.pose_gradient(pose_a, pose_b_end, kx, ktheta)  # [kx (xa - xb), ktheta dtheta]
+    hess = rigid_coupling.hessian(kx, ktheta)                               # diag(kx I, ktheta I)
     force = np.empty(3)
     cx = kx * damping_tau
-    denom = mass + dt * dt * kx + dt * cx
     for i in range(3):
-        v1 = (mass * twist_a[i] + dt * mass * free_accel_a[i] - dt * kx * (pose_a[i] - pose_b_end[i])
+        denom = mass + dt * dt * hess[i, i] + dt * cx
+        v1 = (mass * twist_a[i] + dt * mass * free_accel_a[i] - dt * grad[i]
               + dt * cx * twist_b_end[i]) / denom
         force[i] = mass * (v1 - twist_a[i]) / dt - mass * free_accel_a[i]
-    dtheta = relative_rotvec(pose_a[3:7].copy(), pose_b_end[3:7].copy())
     ct = ktheta * damping_tau
-    lhs = inertia_world + (dt * dt * ktheta + dt * ct) * np.eye(3)
-    rhs = (inertia_world @ (twist_a[3:6] + dt * free_accel_a[3:6]) - dt * ktheta * dtheta
+    lhs = inertia_world + dt * dt * hess[3:6, 3:6] + dt * ct * np.eye(3)
+    rhs = (inertia_world @ (twist_a[3:6] + dt * free_accel_a[3:6]) - dt * grad[3:6]
            + dt * ct * twist_b_end[3:6])
     w1 = np.linalg.solve(lhs, rhs)
     torque = inertia_world @ (w1 - twist_a[3:6]) / dt - inertia_world @ free_accel_a[3:6]
@@ -269,9 +234,7 @@ def warm_up():
     pose = np.array([0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0])
     twist = np.zeros(6)
     extrapolate_pose(pose, twist, twist, 0.0, 0.01)
-    coupling_energy(pose, pose, 1.0, 1.0)
     coupling_wrench(pose, pose, 1.0, 1.0)
-    coupling_stiffness(pose, pose, 1.0, 1.0)
     implicit_coupling_wrench(pose, twist, np.zeros(6), pose, twist, 1.0, np.eye(3), 1.0, 1.0, 0.0, 0.01)
     explicit_coupling_wrench(pose, twist, pose, twist, 1.0, 1.0, 0.0)
 

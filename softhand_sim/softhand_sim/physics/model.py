@@ -100,6 +100,11 @@ class Model:
         from softhand_sim.physics.state import State
         return State.at_rest(self)
 
+    def control(self):
+        """The step inputs (control.Control) holding every body at its rest pose."""
+        from softhand_sim.physics.control import Control
+        return Control.at_rest(self)
+
 
 def _get(asset, name, default):
     v = getattr(asset, name, None)

@@ -4,14 +4,17 @@ Backward Euler with exactly one Newton iteration (Eq. 4 of the paper):
     (M + dt^2 H) v_new = M v - dt grad U,   q_new = q + dt v_new,  q_rot <- exp(dt w) q_rot
 H, grad U from the sum of the terms of Eq. 5. PCG warm-started from the previous velocities.
 
-Extension points (the contact helper uses them):
-  solver.pre_step_hooks: callables hook(solver, state, dt) run first in each step (collision
-      detection); they may fill solver.step_terms.
-  solver.terms / solver.step_terms: objects with add_all(solver, state, grad, values) -> energy [J]
-      that ADD their gradient into grad (flat, model dof layout) and Hessian into the CSR values
-      (model.indptr / model.indices; use energies.assembly.csr_slot or the model's reserved
-      node-object blocks). `terms` persist; `step_terms` are cleared at the start of each step.
-      Each is one Python call per step (not per element or CG iteration).
+    stats = solver.step(state, control, dt)
+
+reads the Model (fixed), the Control (this step's inputs: Eq. 14 targets and stiffnesses, node
+loads; control.py) and advances the State in place. Its stages, in this order:
+  1. collide   the contact system given to the Solver (contact/detection.ContactSystem, or None):
+               detection, anchors, stick/slip -> this step's active contact list
+  2. assemble  gradient and CSR Hessian of every term at the state (`assemble`): tissue, joints,
+               bone-tissue, Eq. 14 targets, gravity, node loads, contacts (Eq. 12-13)
+  3. PCG       (M + dt^2 H) v = M v - dt grad U
+  4. advance   positions and orientations by dt v
+Each term is one Python->numba call per step (not per element or CG iteration).
 """
 import time
 from dataclasses import dataclass
@@ -21,6 +24,7 @@ from numba import njit
 
 from softhand_sim.physics import pcg as pcg_mod
 from softhand_sim.physics.energies import bone_tissue, gravity, joints, rigid_coupling, tissue
+from softhand_sim.physics.control import Control  # noqa: F401  (re-export for the documented API)
 from softhand_sim.physics.energies.inertia import finalize_system, kinetic_energy
 from softhand_sim.physics.model import Model, build_model  # noqa: F401  (re-export for the documented API)
 from softhand_sim.physics.rotations import integrate_rotation, quat_to_matrix
@@ -33,23 +37,10 @@ class StepStats:
     energy: float = 0.0         # potential energy U at the start of the step [J]
     setup_ms: float = 0.0       # rotations + assembly of gradient and M + dt^2 H
     solve_ms: float = 0.0       # PCG + advance
-    collision_ms: float = 0.0   # pre-step hooks
+    collision_ms: float = 0.0   # the collide stage
     hit_cap: bool = False       # CG stopped at cg_max_iterations
     refactored: bool = False    # a new factor preconditioner was published in this step (in setup)
     contacts: int = 0
-
-
-@njit(cache=True)
-def _add_targets(body_x, body_q, target_x, target_q, kx, kth, body_slots, body_dof0, grad, values):
-    """Eq. 14 between every body and its fixed target (bones: intermediate bones; objects: engine
-    copies): energy [J], gradient, Hessian diag(kx I, k_theta I)."""
-    e = rigid_coupling.targets_energy(body_x, body_q, target_x, target_q, kx, kth)
-    rigid_coupling.targets_add_gradient(body_x, body_q, target_x, target_q, kx, kth, grad, body_dof0)
-    for b in range(body_x.shape[0]):
-        for i in range(3):
-            values[body_slots[b, i, i]] += kx[b]
-            values[body_slots[b, 3 + i, 3 + i]] += kth[b]
-    return e
 
 
 @njit(cache=True)
@@ -89,10 +80,13 @@ class Solver:
 
     params: sim_node parameters by their schema names (params.SIM; solver keys: cg_tolerance,
     cg_max_iterations, preconditioner) overriding the model's own (model.params).
+    contacts: the ContactSystem of the collide stage (contact/detection.build_contact_system), or None
+    for a step without contact.
     """
 
-    def __init__(self, model, params=None):
+    def __init__(self, model, params=None, contacts=None):
         self.model = m = model
+        self.contacts = contacts
         p = dict(model.params)
         p.update(params or {})
         self.params = p
@@ -121,53 +115,23 @@ class Solver:
         self._node_inv = np.zeros((m.node_count, 3, 3))
         self._body_inv = np.zeros((m.body_count, 6, 6))
         self.gravity = np.asarray(p["gravity"], dtype=np.float64).reshape(3)
-        self.target_x = np.zeros((m.body_count, 3))
-        self.target_q = np.zeros((m.body_count, 4))
-        self.target_kx = m.body_target_kx.copy()
-        self.target_ktheta = m.body_target_ktheta.copy()
-        self._set_targets(0, m.body_rest_pose)
-        self.pre_step_hooks = []
-        self.terms = []
-        self.step_terms = []
         self.last_stats = StepStats()
         # fused rotation + tissue kernel when K0 is the isotropic stiffness of the params (always,
-        # for build_model's models); the K0 kernels otherwise
+        # for build_model's models): the named fast path of the tissue term, tested against the
+        # update_rotations + K0 reference kernels in tests/physics/test_fast_paths.py
         self._lame = tissue.lame(float(p["youngs_modulus"]), float(p["poisson_ratio"]))
         self._triplets = pcg_mod.triplet_pattern(m.indptr, m.indices)
         self._fused_tissue = tissue.is_isotropic_K0(m.tet_K0, m.tet_Dm_inv, m.tet_volume, *self._lame)
 
-    # ---- targets (Eq. 14)
-    def _set_targets(self, first, poses):
-        poses = np.asarray(poses, dtype=np.float64).reshape(-1, 7)
-        for i, pose in enumerate(poses):
-            b = first + i
-            q = pose[3:] / np.linalg.norm(pose[3:])
-            self.target_q[b] = q
-            self.target_x[b] = pose[:3] + quat_to_matrix(q) @ self.model.body_com_local[b]
+    # ---- the stages of the step
+    def collide(self, state):
+        """Stage 1: contact detection and anchor update at state (no-op without contacts)."""
+        if self.contacts is not None:
+            self.contacts.collide(state.node_x, state.body_x, state.body_q, state.v, self.model.body_dof0)
 
-    def set_bone_targets(self, poses):
-        """Intermediate-bone targets (bone_count, 7) bone-frame poses (Sect. 3.6)."""
-        poses = np.asarray(poses, dtype=np.float64)
-        if poses.shape != (self.model.bone_count, 7) or not np.all(np.isfinite(poses)):
-            raise ValueError(f"bone targets must be finite ({self.model.bone_count}, 7), got {poses.shape}")
-        self._set_targets(0, poses)
-
-    def set_object_targets(self, poses, kx=None, ktheta=None):
-        """Engine-copy targets of the rigid objects (object_count, 7) (Sect. 3.7); optional per-object
-        stiffness kx [N/m] / ktheta [N m/rad] (0 releases an object)."""
-        m = self.model
-        poses = np.asarray(poses, dtype=np.float64)
-        if poses.shape != (m.object_count, 7) or not np.all(np.isfinite(poses)):
-            raise ValueError(f"object targets must be finite ({m.object_count}, 7), got {poses.shape}")
-        self._set_targets(m.bone_count, poses)
-        if kx is not None:
-            self.target_kx[m.bone_count:] = kx
-        if ktheta is not None:
-            self.target_ktheta[m.bone_count:] = ktheta
-
-    # ---- the step
-    def assemble(self, state):
-        """Fill self.grad and self.values with dU/dq and H at state (rotations refreshed); returns U.
+    def assemble(self, state, control):
+        """Stage 2: fill self.grad and self.values with dU/dq and H at state (rotations refreshed)
+        for the inputs in control and the contacts of the last collide; returns U [J].
 
         One compiled call per term (a fused kernel measured ~4x slower: LLVM handles the single
         huge function badly), i.e. a handful of Python->numba calls per step.
@@ -192,23 +156,22 @@ class Solver:
         e += bone_tissue.add_all(state.node_x, state.body_x, state.body_q, m.tets, m.sample_tet,
                                  m.sample_body, m.sample_r, m.sample_bary, m.sample_k, b0, g,
                                  m.sample_slots, vals, True)
-        e += _add_targets(state.body_x, state.body_q, self.target_x, self.target_q, self.target_kx,
-                          self.target_ktheta, m.body_slots, b0, g, vals)
+        e += rigid_coupling.add_all(state.body_x, state.body_q, control.target_x, control.target_q,
+                                    control.target_kx, control.target_ktheta, b0, g, m.body_slots, vals)
         e += gravity.add_all(state.node_x, state.body_x, m.node_mass, m.body_mass,
                              m.node_gravity_scale, m.body_gravity_scale, self.gravity, b0, g)
-        for term in self.terms + self.step_terms:
-            e += term.add_all(self, state, self.grad, self.values)
+        e += gravity.add_loads(state.node_x, state.body_x, control.node_force, control.body_force, b0, g)
+        if self.contacts is not None:
+            e += self.contacts.add_all(state, m, g, vals)
         return e
 
-    def step(self, state, dt):
-        """Advance state by dt [s] in place; returns StepStats."""
+    def step(self, state, control, dt):
+        """Advance state by dt [s] in place under control (this step's inputs); returns StepStats."""
         m = self.model
         t0 = time.perf_counter()
-        self.step_terms = []
-        for hook in self.pre_step_hooks:
-            hook(self, state, dt)
+        self.collide(state)
         t1 = time.perf_counter()
-        energy = self.assemble(state)
+        energy = self.assemble(state, control)
         finalize_system(self.values, self.rhs, self.grad, state.v, dt, m.node_mass, m.body_mass,
                         state.body_q, m.body_inertia_local, m.diag_slot, m.body_slots, m.body_dof0)
         refactored = False
@@ -232,7 +195,8 @@ class Solver:
         self.last_stats = StepStats(
             cg_iters=int(iters), residual=float(res), energy=float(energy),
             setup_ms=(t2 - t1) * 1e3, solve_ms=(t3 - t2) * 1e3, collision_ms=(t1 - t0) * 1e3,
-            hit_cap=bool(cap), refactored=refactored, contacts=sum(getattr(t, "count", 0) for t in self.step_terms))
+            hit_cap=bool(cap), refactored=refactored,
+            contacts=int(self.contacts.count) if self.contacts is not None else 0)
         return self.last_stats
 
     # ---- read-out

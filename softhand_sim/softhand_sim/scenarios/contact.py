@@ -159,32 +159,36 @@ class PinchLift:
         palm[2] += self.LIFT * smoothstep((t - self.T_START) / (self.T_LIFT - self.T_START))
         return forward_kinematics(palm, self.digit_angles(t))[1]
 
-    def attach(self, solver, state, asset):
-        """Contact for the ball (returns the ContactSystem); settles the soft hand into the open
-        pre-shape with the ball parked 0.5 m below, then puts the ball and its copy between the pads."""
+    def contact_system(self, model, asset):
+        """The ContactSystem of the hand's skin and the ball, for Solver(model, contacts=...)."""
+        return contact.build_contact_system(model, Scene(-1.0, self.ball.friction, (self.ball,)), asset)
+
+    def attach(self, solver, state, control):
+        """Settles the soft hand (solver built with `contact_system`) into the open pre-shape with
+        the ball parked 0.5 m below, then puts the ball and its copy between the pads; returns the
+        solver's ContactSystem."""
         model = solver.model
         ball_body = model.bone_count
-        system = contact.attach(solver, Scene(-1.0, self.ball.friction, (self.ball,)), asset)
         parked = self.ball.pose.copy()
         parked[2] -= 0.5
         state.set_body_pose(model, ball_body, parked)
-        solver.set_object_targets(parked[None])
-        solver.set_bone_targets(self.bone_targets(0.0))
+        control.set_object_targets(model, parked[None])
+        control.set_bone_targets(model, self.bone_targets(0.0))
         for _ in range(self.SETTLE_STEPS):
-            solver.step(state, 0.01)
+            solver.step(state, control, 0.01)
         state.set_body_pose(model, ball_body, self.ball.pose.copy())
         # the copy holds the ball m g / kx higher, so that the hand-side ball hangs where planned
         self.copy_pose = self.ball.pose.copy()
         gravity = np.asarray(model.params["gravity"], dtype=np.float64)
         self.copy_pose[:3] -= self.ball.mass * gravity / model.body_target_kx[ball_body]
-        solver.set_object_targets(self.copy_pose[None])
-        return system
+        control.set_object_targets(model, self.copy_pose[None])
+        return solver.contacts
 
-    def drive(self, solver, t, dt):
+    def drive(self, model, control, t, dt):
         """Set the targets of the step that starts at t (and let the ball go at T_RELEASE)."""
         if t <= self.T_RELEASE < t + dt:
-            solver.set_object_targets(self.copy_pose[None], kx=0.0, ktheta=0.0)
-        solver.set_bone_targets(self.bone_targets(t))
+            control.set_object_targets(model, self.copy_pose[None], kx=0.0, ktheta=0.0)
+        control.set_bone_targets(model, self.bone_targets(t))
 
 
 def sim_node_solver_params():
@@ -214,9 +218,12 @@ class PinchScenario:
         self.script = PinchLift(asset)
         return [self.script.ball]
 
-    def __call__(self, solver, state):
-        self.system = self.script.attach(solver, state, self.asset)
+    def contacts(self, model):
+        return self.script.contact_system(model, self.asset)
+
+    def __call__(self, solver, state, control):
+        self.system = self.script.attach(solver, state, control)
 
         def update(k, t):
-            self.script.drive(solver, t, 0.01)
+            self.script.drive(solver.model, control, t, 0.01)
         return update

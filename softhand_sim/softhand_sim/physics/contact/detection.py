@@ -245,8 +245,9 @@ def collide_kernel(node_x, body_x, body_q, v, body_dof0, point_nodes, point_bary
 class ContactSystem:
     """Contact state of one simulation plus the calls the solver's step makes.
 
-    collide(node_x, body_x, body_q)            before assembling: detection, stick/slip, list
+    collide(node_x, body_x, body_q)            the collide stage: detection, stick/slip, list
     value / add_gradient / add_hessian(...)    the Eq. 12-13 term over the active list
+    add_all(state, model, grad, values)        the same, as the assemble stage calls it
     output(node_x, body_x, body_q)             per-contact arrays for /hand/contacts
     Arrays of the active list (first `count` rows): point (C,) skin point index, object (C,)
     index into model.object_names, slip (C,) u1, plus what energies/contact.py reads.
@@ -323,18 +324,13 @@ class ContactSystem:
         return contact_energy.add_hessian(*self._args(node_x, body_x, body_q), self.slip, body_dof0,
                                           indptr, indices, values)
 
-    # ---- the solver's extension points (solver.pre_step_hooks, solver.step_terms)
-    def pre_step(self, solver, state, dt):
-        """Pre-step hook: collision detection and anchor update, then join this step's terms."""
-        self.collide(state.node_x, state.body_x, state.body_q, state.v, solver.model.body_dof0)
-        solver.step_terms.append(self)
-
-    def add_all(self, solver, state, grad, values):
-        """Step term: adds the gradient and Hessian of Eq. 12-13; returns the energy [J]."""
-        m = solver.model
-        e = self.add_gradient(state.node_x, state.body_x, state.body_q, m.body_dof0, grad)
+    # ---- the solver's contact term (Solver.assemble, after the collide stage)
+    def add_all(self, state, model, grad, values):
+        """Adds the gradient and Hessian of Eq. 12-13 at state (model dof layout and CSR pattern);
+        returns the energy [J]."""
+        e = self.add_gradient(state.node_x, state.body_x, state.body_q, model.body_dof0, grad)
         self.skipped_entries = self.add_hessian(state.node_x, state.body_x, state.body_q,
-                                                m.body_dof0, m.indptr, m.indices, values)
+                                                model.body_dof0, model.indptr, model.indices, values)
         return e
 
     def output(self, node_x, body_x, body_q, cap_friction=True):
@@ -358,18 +354,16 @@ class ContactSystem:
                 "slip": (self.slip[:c] > 0).astype(np.uint8), "point": self.point[:c].copy()}
 
 
-def attach(solver, scene, asset=None, points="auto", kn=None, kf=None, capacity=8192, **kwargs):
-    """Build the contact model for solver.model and scene, register it with the solver (one
-    pre-step hook) and return the ContactSystem. points: "skin", "surface" or "auto" (the
-    embedded skin when the asset has one, else the tet surface nodes). kn, kf [N/m^3] default to
-    the config defaults (3e7, 1.5e7). Extra kwargs go to build_contact_model (object_bodies, grids)."""
+def build_contact_system(model, scene, asset=None, points="auto", kn=None, kf=None, capacity=8192, **kwargs):
+    """The ContactSystem of model and scene, for Solver(model, contacts=...) (its collide stage).
+    points: "skin", "surface" or "auto" (the embedded skin when the asset has one, else the tet
+    surface nodes). kn, kf [N/m^3] default to the config defaults (3e7, 1.5e7). Extra kwargs go to
+    build_contact_model (object_bodies, grids)."""
     if points == "auto":
         has_skin = (asset is not None and getattr(asset, "skin_triangles", None) is not None
-                    and len(getattr(solver.model, "skin_tet", ())) > 0)
+                    and len(getattr(model, "skin_tet", ())) > 0)
         points = "skin" if has_skin else "surface"
     kn = 3.0e7 if kn is None else kn
     kf = 1.5e7 if kf is None else kf
-    cm = build_contact_model(solver.model, scene, asset, points, kn, kf, **kwargs)
-    system = ContactSystem(cm, capacity)
-    solver.pre_step_hooks.append(system.pre_step)
-    return system
+    cm = build_contact_model(model, scene, asset, points, kn, kf, **kwargs)
+    return ContactSystem(cm, capacity)

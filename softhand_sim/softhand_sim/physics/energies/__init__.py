@@ -2,5 +2,5 @@
 bone_tissue (Eq. 11), contact (Eq. 12-13, contact helper), rigid_coupling (Eq. 14), gravity.
 
 Each term gives value / add_gradient / add_hessian over flat float64/int32 arrays (numba).
-`terms.py` holds the common calling convention the solver uses to sum them.
+The solver (physics/solver.py) calls them in its assemble stage.
 """

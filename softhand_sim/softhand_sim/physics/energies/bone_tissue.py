@@ -11,33 +11,6 @@ to the gap times k, small because the coupling is stiff). Rotation perturbation 
 import numpy as np
 from numba import njit
 
-from softhand_sim.physics.rotations import quat_to_matrix
-
-
-@njit(cache=True)
-def _local(s, x, body_x, body_q, tets, sample_tet, sample_body, sample_r, sample_bary,
-           sample_k, g, H, want_hess):
-    """Energy of point s; writes g (18,), H (18,18)."""
-    t, b = sample_tet[s], sample_body[s]
-    rw = quat_to_matrix(body_q[b]) @ sample_r[s]
-    d = body_x[b] + rw
-    for a in range(4):
-        d = d - sample_bary[s, a] * x[tets[t, a]]
-    Jm = np.zeros((3, 18))
-    for a in range(4):
-        for i in range(3):
-            Jm[i, 3 * a + i] = -sample_bary[s, a]
-    for i in range(3):
-        Jm[i, 12 + i] = 1.0
-    Jm[0, 16], Jm[0, 17] = rw[2], -rw[1]
-    Jm[1, 15], Jm[1, 17] = -rw[2], rw[0]
-    Jm[2, 15], Jm[2, 16] = rw[1], -rw[0]
-    k = sample_k[s]
-    g[:] = k * (Jm.T @ d)
-    if want_hess:
-        H[:, :] = k * (Jm.T @ Jm)
-    return 0.5 * k * np.dot(d, d)
-
 
 @njit(cache=True)
 def add_all(x, body_x, body_q, tets, sample_tet, sample_body, sample_r, sample_bary, sample_k,
@@ -49,7 +22,7 @@ def add_all(x, body_x, body_q, tets, sample_tet, sample_body, sample_r, sample_b
     k J^T J has node-node blocks k w_a w_b I (diagonal), node-body blocks -k w_a [I, S] and the
     body block k [[I, S], [S^T, S^T S]], summed per body over its points and written once. Only
     the nonzero entries are added (120 per point instead of 324); the result is the same matrix
-    as the dense k J^T J of `_local` up to round-off."""
+    as the dense k J^T J (the reference stencil of tests/physics/test_fast_paths.py) up to round-off."""
     B = body_x.shape[0]
     acc_k = np.zeros(B)             # sum k
     acc_r = np.zeros((B, 3))        # sum k rw

@@ -28,6 +28,7 @@ O(|D| / |r|) relative otherwise. Symmetric PSD, like the Eq. 14 coupling.
 import numpy as np
 from numba import njit
 
+from softhand_sim.physics.energies.assembly import csr_slot
 from softhand_sim.physics.rotations import quat_to_matrix
 
 CONTACT_DOFS = 18  # 4 nodes x 3 + body (c, theta)
@@ -169,7 +170,7 @@ def add_hessian(node_x, body_x, body_q, contact_count, contact_nodes, contact_ba
                 contact_anchor, contact_normal, contact_area, kn, kf, contact_slip, body_dof0,
                 indptr, indices, values):
     """Adds the Gauss-Newton Hessian of every contact into the CSR values (full pattern, sorted
-    rows), locating entries by binary search (contacts change every step). Sliding contacts
+    rows), locating entries with assembly.csr_slot (contacts change every step). Sliding contacts
     (contact_slip (C,) u1 == 2, contact.SLIDING) get no stiffness along their friction force:
     their anchor follows the point during the step (Sect. 3.5 slip regime), so the friction
     force is constant over the step. 0 (stick) and 1 (slip, coming to rest) keep w K. Entries missing from
@@ -193,33 +194,17 @@ def add_hessian(node_x, body_x, body_q, contact_count, contact_nodes, contact_ba
                 col = dofs[q0]
                 if col < 0 or (H[p, q0] == 0.0 and H[p, q0 + 1] == 0.0 and H[p, q0 + 2] == 0.0):
                     continue
-                # binary search in the sorted row for the triplet's first column
-                lo = indptr[row]
-                hi = end
-                while lo < hi:
-                    mid = (lo + hi) // 2
-                    if indices[mid] < col:
-                        lo = mid + 1
-                    else:
-                        hi = mid
+                # the pattern holds whole triplets, so col + j sits at k + j when col is at k
+                k = csr_slot(indptr, indices, row, col)
                 for j in range(3):
                     h = H[p, q0 + j]
                     if h == 0.0:
                         continue
-                    # the pattern holds whole triplets, so col + j sits at lo + j when present
-                    k = lo + j
-                    if k < end and indices[k] == col + j:
-                        values[k] += h
+                    if k >= 0 and k + j < end and indices[k + j] == col + j:
+                        values[k + j] += h
                     else:  # not laid out as a triplet: search it on its own
-                        k2 = indptr[row]
-                        hi2 = end
-                        while k2 < hi2:
-                            mid = (k2 + hi2) // 2
-                            if indices[mid] < col + j:
-                                k2 = mid + 1
-                            else:
-                                hi2 = mid
-                        if k2 < end and indices[k2] == col + j:
+                        k2 = csr_slot(indptr, indices, row, col + j)
+                        if k2 >= 0:
                             values[k2] += h
                         else:
                             skipped += 1
