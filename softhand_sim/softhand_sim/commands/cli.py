@@ -1,4 +1,4 @@
-"""`softhand`: the project's top-level command (demo, bench, hand, params, offline).
+"""`softhand`: the project's top-level command (demo, bench, hand, params, calibrate, offline).
 
 Each subcommand lives in its own module and is imported only when used, so `softhand --help`
 is instant and `softhand bench` never loads rclpy.
@@ -14,6 +14,8 @@ SUBCOMMANDS = {
     "bench": ("softhand_sim.commands.bench", "solver benchmark (single thread): steps/s median and p99, setup/solve split"),
     "hand": ("softhand_sim.commands.hand", "build the parametric hand model and render it to a PNG"),
     "params": ("softhand_sim.commands.params", "print every node parameter with its default, unit and meaning"),
+    "calibrate": ("softhand_sim.commands.calibrate", "fit the user's hand measures to a tracker bag; "
+                                                    "writes a measures file"),
     "offline": ("softhand_sim.commands.offline", "run the whole pipeline over a bag without ROS, deterministically; "
                                                  "prints the ball's lift, hold and fall"),
 }
