@@ -111,6 +111,21 @@ def as_measures(measures):
     raise TypeError(f"measures must be None, a dict or HandMeasures, got {type(measures).__name__}")
 
 
+def scale_measures(measures, factor, **overrides):
+    """`measures` with every length and width times `factor` (ratios, angles and the layout
+    fractions kept), then the named `overrides` [m] applied."""
+    m = as_measures(measures)
+    scaled = {}
+    for f in fields(m):
+        v = getattr(m, f.name)
+        if f.name.endswith("_lengths"):
+            scaled[f.name] = tuple(factor * x for x in v)
+        elif f.name.endswith(("_width", "_length", "_thickness")):
+            scaled[f.name] = factor * v
+    scaled.update(overrides)
+    return HandMeasures.from_dict({**m.to_dict(), **scaled})
+
+
 MEASURES_FILE_KEY = "hand_measures"
 
 
