@@ -25,7 +25,9 @@ THUMB_PRONATION_DEG = 50.0  # nail normal tilted from +z toward the radial side
 LIMITS_MCP = ((-0.35, 1.57), (-0.35, 0.35))
 LIMITS_PIP = ((0.0, 1.75), (0.0, 0.0))
 LIMITS_DIP = ((0.0, 1.40), (0.0, 0.0))
-LIMITS_THUMB_CMC = ((-0.35, 0.80), (-0.50, 0.60))
+# Thumb CMC: wide enough for the opposition a real tracked thumb shows (Leap recording leap_grab:
+# flexion up to 52 deg, abduction down to -33 deg from rest in a fist), with a few degrees spare.
+LIMITS_THUMB_CMC = ((-0.35, 0.98), (-0.65, 0.60))
 LIMITS_THUMB_MCP = ((-0.15, 1.00), (0.0, 0.0))
 LIMITS_THUMB_IP = ((-0.35, 1.40), (0.0, 0.0))
 FINGER_BONES = {"thumb": (1, 2, 3), "index": (4, 5, 6), "middle": (7, 8, 9), "ring": (10, 11, 12),
