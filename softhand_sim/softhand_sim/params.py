@@ -58,6 +58,8 @@ _PAPER = "paper Sect. 5.1"
 SIM = {
     "sim_rate": P(float, "Hz", "full-simulation step rate; dt = 1/sim_rate", 10, 2000, positive=True),
     "hand_side": P(str, "-", "which hand to simulate", choices=("right", "left")),
+    "hand_measures": P(str, "-", "the simulated hand's size: 'default' (19 cm) or a measures file written by "
+                                 "`softhand calibrate` ('auto' is not implemented yet)"),
     "mesh": P(str, "-", "tissue resolution: coarse (~850 tets, paper 856) or fine (~8.5k)", choices=("coarse", "fine")),
     "youngs_modulus": P(float, "Pa", f"tissue Young's modulus ({_PAPER}: 1e5)", positive=True),
     "poisson_ratio": P(float, "-", f"tissue Poisson ratio ({_PAPER}: 0.33)", 0.0, 0.49),
