@@ -62,12 +62,23 @@ def _pose_transform(target, rest):
     return rot, dq, target[:3] - rot @ rest[:3]
 
 
+def hand_measures(value):
+    """HandMeasures of the `hand_measures` parameter: 'default' or a measures file."""
+    from softhand_sim.handmodel.measures import HandMeasures, read_measures_file
+    if value in ("", "default"):
+        return HandMeasures()
+    if value == "auto":
+        raise ValueError("hand_measures: 'auto' is not implemented yet; calibrate with `softhand calibrate BAG "
+                         "--out measures.yaml` and pass the file")
+    return read_measures_file(value)
+
+
 class SimRuntime:
     def __init__(self, params, scene=None, asset=None):
         self.params = params
         self.scene = scene if scene is not None else load_scene(params["scene_file"] or None)
-        self.asset = asset if asset is not None else load_or_build_hand(side=params["hand_side"],
-                                                                        resolution=params["mesh"])
+        self.asset = asset if asset is not None else load_or_build_hand(
+            hand_measures(params.get("hand_measures", "default")), side=params["hand_side"], resolution=params["mesh"])
         self.objects = list(self.scene.dynamic_objects)
         self.object_names = [o.name for o in self.objects]
         self.model = build_model(self.asset, params, self.objects)

@@ -1,4 +1,4 @@
-"""`softhand`: the project's top-level command (demo, bench, hand, params, offline).
+"""`softhand`: the project's top-level command (demo, bench, hand, params, calibrate, offline).
 
 Each subcommand lives in its own module and is imported only when used, so `softhand --help`
 is instant and `softhand bench` never loads rclpy.
@@ -13,7 +13,13 @@ SUBCOMMANDS = {
                                   "writes runs/<stamp>/ (bag, summary.json, preview)"),
     "bench": ("softhand_sim.commands.bench", "solver benchmark (single thread): steps/s median and p99, setup/solve split"),
     "hand": ("softhand_sim.commands.hand", "build the parametric hand model and render it to a PNG"),
+    "model": ("softhand_sim.commands.model_info", "`model info [--json] [--measures FILE]`: the hand model's "
+                                                  "figures (skin, tets, quality, embedding, build time) as JSON"),
     "params": ("softhand_sim.commands.params", "print every node parameter with its default, range, unit and meaning; --yaml writes the params file"),
+    "calibrate": ("softhand_sim.commands.calibrate", "fit the user's hand measures to a tracker bag; "
+                                                    "writes a measures file"),
+    "fidelity": ("softhand_sim.commands.fidelity", "palm, knuckle, fingertip and phalanx-direction error of the "
+                                                  "simulated vs the tracked hand (recording or --offline)"),
     "offline": ("softhand_sim.commands.offline", "run the whole pipeline over a bag without ROS, deterministically; "
                                                  "prints the ball's lift, hold and fall"),
 }

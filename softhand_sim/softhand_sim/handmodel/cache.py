@@ -7,7 +7,7 @@ from softhand_sim.handmodel.asset import HandAsset
 from softhand_sim.handmodel.build import build_hand
 from softhand_sim.handmodel.measures import as_measures
 
-BUILDER_VERSION = "2"  # bump when the builder's output changes, to invalidate old caches
+BUILDER_VERSION = "3"  # bump when the builder's output changes, to invalidate old caches
 
 
 def cache_dir():

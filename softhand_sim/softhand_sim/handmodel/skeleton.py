@@ -25,22 +25,33 @@ THUMB_PRONATION_DEG = 50.0  # nail normal tilted from +z toward the radial side
 LIMITS_MCP = ((-0.35, 1.57), (-0.35, 0.35))
 LIMITS_PIP = ((0.0, 1.75), (0.0, 0.0))
 LIMITS_DIP = ((0.0, 1.40), (0.0, 0.0))
-LIMITS_THUMB_CMC = ((-0.35, 0.80), (-0.50, 0.60))
+# Thumb CMC: wide enough for the opposition a real tracked thumb shows (Leap recording leap_grab:
+# flexion up to 52 deg, abduction down to -33 deg from rest in a fist), with a few degrees spare.
+LIMITS_THUMB_CMC = ((-0.35, 0.98), (-0.65, 0.60))
 LIMITS_THUMB_MCP = ((-0.15, 1.00), (0.0, 0.0))
 LIMITS_THUMB_IP = ((-0.35, 1.40), (0.0, 0.0))
 FINGER_BONES = {"thumb": (1, 2, 3), "index": (4, 5, 6), "middle": (7, 8, 9), "ring": (10, 11, 12),
                 "little": (13, 14, 15)}
 
 
+def knuckle_span(m):
+    """Index-to-little knuckle distance across the palm [m]: the palm width less the half widths
+    of the two outer fingers (their skin edges span the palm width)."""
+    return m.palm_width - 0.5 * (m.index_width + m.little_width)
+
+
 def finger_base_layout(m):
     """MCP joint positions (palm frame = world at rest) and finger directions of the four fingers.
 
-    Knuckles are spaced so that index-to-little skin edges span the palm width; the row of
-    knuckles is arched (index and ring 4 %, little 15 % of the palm length short of the middle).
+    Knuckles are spaced so that index-to-little skin edges span the palm width, the gaps between
+    neighbours as `m.knuckle_gaps`; the row of knuckles is arched (default: index and ring 4.5 %,
+    little 15.5 % of the palm length short of the middle, `m.knuckle_recess`).
     """
-    s = (m.palm_width - 0.5 * (m.index_width + m.little_width)) / 3.0
-    x_back = {"index": 0.045, "middle": 0.0, "ring": 0.045, "little": 0.155}
-    y = {"index": s, "middle": 0.0, "ring": -s, "little": -2.0 * s}
+    s = knuckle_span(m) / 3.0  # mean gap
+    g_im, g_mr, g_rl = (s * g for g in m.knuckle_gaps)
+    r_idx, r_rng, r_lit = m.knuckle_recess
+    x_back = {"index": r_idx, "middle": 0.0, "ring": r_rng, "little": r_lit}
+    y = {"index": g_im, "middle": 0.0, "ring": -g_mr, "little": -(g_mr + g_rl)}
     spread = {"index": 1.0, "middle": 0.0, "ring": -1.0, "little": -2.0}
     out = {}
     for f in ("index", "middle", "ring", "little"):
@@ -52,8 +63,9 @@ def finger_base_layout(m):
 
 def thumb_layout(m):
     """CMC position and the three (direction, dorsal hint) pairs of the thumb bones."""
-    s = (m.palm_width - 0.5 * (m.index_width + m.little_width)) / 3.0
-    cmc = np.array([0.25 * m.palm_length, 0.75 * s, -0.22 * m.palm_thickness])
+    s = knuckle_span(m) / 3.0
+    fx, fy, fz = m.thumb_cmc
+    cmc = np.array([fx * m.palm_length, fy * s, fz * m.palm_thickness])
     dirs = []
     for az_deg, el_deg in THUMB_DIRECTIONS_DEG:
         az, el = np.radians(az_deg), np.radians(el_deg)

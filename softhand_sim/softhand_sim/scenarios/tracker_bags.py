@@ -14,8 +14,12 @@ capsules (radius DIGIT_RADIUS) go into the ball for a closure.
 
 The pinch bag (pinch_lift) uses the thumb-index pinch of softhand_sim.scenarios.contact.
 
+The hand-size bags (small_hand, large_hand) move a hand of another size (SMALL_HAND, LARGE_HAND:
+16 and 21 cm wrist to middle tip) through open, pinch and fist above the table, for calibration
+and fidelity checks of fitted hands.
+
 Scenarios (name -> Scenario): grasp_lift, squeeze, press_table, fast_dropout, grasp_short,
-pinch_lift.
+pinch_lift, small_hand, large_hand.
 """
 from __future__ import annotations
 
@@ -26,7 +30,8 @@ import numpy as np
 from softhand_sim.physics.rotations import quat_conj, quat_exp, quat_log, quat_mul, quat_to_matrix
 
 from softhand_sim.scenarios.contact import PINCH_BALL_IN_PALM, pinch_angles, smoothstep
-from softhand_sim.handmodel.kinematics import DIGIT_LIMITS, forward_kinematics
+from softhand_sim.handmodel.kinematics import DIGIT_LIMITS, HandDims, forward_kinematics
+from softhand_sim.handmodel.measures import HandMeasures, scale_measures
 
 BALL_CENTER = np.array([0.0, 0.0, 0.79])   # [m] config/scene.yaml
 BALL_RADIUS = 0.04                           # [m]
@@ -335,13 +340,63 @@ class FastMotion:
         return np.r_[pos, q], digit_angles(np.full(5, closure))
 
 
+# Hands of other sizes: the defaults scaled to 16 and 21 cm wrist to middle tip, with their own
+# proportions (a shorter palm and little finger on the small hand, a longer thumb on the large).
+SMALL_HAND = scale_measures(HandMeasures(), 0.16 / 0.19, palm_length=0.072, little_lengths=(0.027, 0.016, 0.016),
+                            knuckle_recess=(0.04, 0.07, 0.2), thumb_cmc=(0.15, 1.1, -0.4))
+LARGE_HAND = scale_measures(HandMeasures(), 0.21 / 0.19, thumb_lengths=(0.050, 0.037, 0.032))
+
+
+TIP_PINCH_GAP = 0.010  # [m] thumb-index tip gap of the tip pinch (the pads' thickness apart)
+
+
+def tip_pinch_angles(measures):
+    """Digit angles (5, 4) [rad] of a tip pinch of the hand at `measures`: thumb and index tips
+    TIP_PINCH_GAP apart, the index flexed moderately, the other fingers open; found by a bounded
+    least-squares search within DIGIT_LIMITS (deterministic)."""
+    from scipy.optimize import least_squares
+    dims = HandDims.from_measures(measures)
+    base = OPEN_ANGLES.copy()
+    lo = np.r_[DIGIT_LIMITS[0, :, 0], DIGIT_LIMITS[1, 1:, 0]]
+    hi = np.r_[DIGIT_LIMITS[0, :, 1], DIGIT_LIMITS[1, 1:, 1]]
+    want = np.deg2rad([30.0, 15.0, 20.0, 30.0, 40.0, 45.0, 30.0])  # a natural pinch to stay near
+
+    def angles(x):
+        a = base.copy()
+        a[0], a[1, 1:] = x[:4], x[4:]
+        return a
+
+    def residual(x):
+        j, _ = forward_kinematics(np.r_[0.0, 0.0, 0.0, PALM_DOWN], angles(x), dims)
+        gap = np.linalg.norm(j[5, :3] - j[10, :3])
+        return np.r_[10.0 * (gap - TIP_PINCH_GAP) / TIP_PINCH_GAP, 0.3 * (x - want)]
+
+    x = least_squares(residual, np.clip(want, lo, hi), bounds=(lo, hi)).x
+    return angles(x)
+
+
+def size_check(measures):
+    """Open still for 1.2 s (the calibration window), pinch thumb and index tips, open, make a
+    fist, open, above the table clear of the scene's objects."""
+    pinch = tip_pinch_angles(measures)
+    spot = np.array([0.10, 0.20, TABLE_TOP + 0.15])
+    k = Keyframes().add(0.0, spot, 0.0).add(1.2, spot, 0.0)
+    k.add(2.2, spot, pinch).add(2.7, spot, pinch).add(3.5, spot, 0.0)
+    k.add(4.5, spot, 1.0).add(5.0, spot, 1.0).add(6.0, spot, 0.0)
+    k.phases["pinch"] = (2.2, 2.7)
+    k.phases["fist"] = (4.5, 5.0)
+    return k
+
+
 @dataclass(frozen=True)
 class Scenario:
-    """How a bag is made: motion factory, mean rate [Hz], gap [s] or None, seed."""
+    """How a bag is made: motion factory, mean rate [Hz], gap [s] or None, seed, the hand's
+    measures (None: the default hand)."""
     motion: object
     rate: float
     gap: tuple | None = None
     seed: int = 0
+    measures: HandMeasures | None = None
 
 
 SCENARIOS = {
@@ -351,6 +406,8 @@ SCENARIOS = {
     "fast_dropout": Scenario(FastMotion, 120.0, gap=FAST_GAP, seed=4),
     "grasp_short": Scenario(grasp_short, 100.0, seed=5),
     "pinch_lift": Scenario(pinch_lift, 100.0, seed=6),
+    "small_hand": Scenario(lambda: size_check(SMALL_HAND), 100.0, seed=7, measures=SMALL_HAND),
+    "large_hand": Scenario(lambda: size_check(LARGE_HAND), 100.0, seed=8, measures=LARGE_HAND),
 }
 
 TIMING_JITTER = 0.0015   # [s] uniform +- jitter of each capture time around the nominal period
@@ -375,7 +432,8 @@ def sample(name: str, noise: bool = True):
     times = np.clip(times, 0.0, motion.duration)
     if sc.gap is not None:
         times = times[(times < sc.gap[0]) | (times >= sc.gap[1])]
-    clean = np.stack([forward_kinematics(*motion(t))[0] for t in times])
+    dims = None if sc.measures is None else HandDims.from_measures(sc.measures)
+    clean = np.stack([forward_kinematics(*motion(t), dims)[0] for t in times])
     noisy = clean.copy()
     if noise:
         noisy[:, :, :3] += rng.normal(0.0, POSITION_NOISE, size=noisy[:, :, :3].shape)

@@ -1,0 +1,88 @@
+"""Fidelity of the simulated hand to the tracked hand: position and direction errors (no ROS).
+
+    from softhand_sim.handmodel.fidelity import fidelity
+    report = fidelity(track_t, track_joints, sim_t, sim_bones, bone_length)
+
+Inputs: tracked joints (n, 26, 3|7) [m] at capture times track_t (n,) [s]; simulated bone poses
+(k, 16, 7) [m, quat x y z w] at state times sim_t (k,) [s], same clock; the simulated hand's bone
+lengths (16,) [m] (HandAsset.bone_length) to place its fingertips. Each simulated state is
+compared with the latest tracked frame captured at or before its time (so the pipeline's lag
+counts as error, as a user would see it); states before the first frame are skipped.
+
+Figures (positions in mm, angles in degrees; each as median and p95 over states and points):
+* palm: simulated palm origin vs tracked WRIST;
+* knuckles: simulated proximal-phalanx origins vs tracked F_PROXIMAL (4 fingers) and the thumb
+  metacarpal origin vs THUMB_METACARPAL (5 points);
+* fingertips: simulated distal bone origin + its length along +x vs tracked F_TIP (5 points);
+* phalanx direction: angle between each simulated digit bone's +x and the tracked segment (15);
+* thumb-index gap: |thumb tip - index tip| tracked and simulated; for states whose tracked gap
+  is below PINCH_GAP the difference simulated - tracked (median, p95 of its magnitude, max).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from softhand_sim.physics.rotations import quat_to_matrix
+from softhand_sim.handmodel.skeleton_names import BONE_SEGMENTS, JOINT_INDEX
+
+PINCH_GAP = 0.015  # [m] tracked thumb-index tip gaps below this count as a pinch
+_DIGIT_FIRST = (1, 4, 7, 10, 13)
+_DISTAL = (3, 6, 9, 12, 15)
+_TIPS = [JOINT_INDEX[d + "_TIP"] for d in ("THUMB", "INDEX", "MIDDLE", "RING", "LITTLE")]
+_BASES = [JOINT_INDEX["THUMB_METACARPAL"]] + [JOINT_INDEX[f + "_PROXIMAL"] for f in ("INDEX", "MIDDLE", "RING", "LITTLE")]
+
+
+def _stats(values_mm) -> dict:
+    v = np.asarray(values_mm, dtype=np.float64).reshape(-1)
+    if v.size == 0:
+        return dict(median=None, p95=None, max=None)
+    return dict(median=round(float(np.median(v)), 2), p95=round(float(np.percentile(v, 95)), 2),
+                max=round(float(v.max()), 2))
+
+
+def simulated_points(bones: np.ndarray, bone_length: np.ndarray):
+    """Palm origin (3,), digit bases (5, 3), fingertips (5, 3) and bone x axes (16, 3) of one
+    simulated state bones (16, 7)."""
+    rot = np.array([quat_to_matrix(np.ascontiguousarray(b[3:])) for b in bones])
+    x = rot[:, :, 0]
+    tips = np.array([bones[b, :3] + bone_length[b] * x[b] for b in _DISTAL])
+    return bones[0, :3], bones[list(_DIGIT_FIRST), :3], tips, x
+
+
+def fidelity(track_t, track_joints, sim_t, sim_bones, bone_length) -> dict:
+    """The figures of the module docstring as a JSON-friendly dict."""
+    track_t = np.asarray(track_t, dtype=np.float64)
+    joints = np.asarray(track_joints, dtype=np.float64)[:, :, :3]
+    sim_t = np.asarray(sim_t, dtype=np.float64)
+    bone_length = np.asarray(bone_length, dtype=np.float64)
+    idx = np.searchsorted(track_t, sim_t + 1e-9, side="right") - 1
+    palm, base, tip, direction, gap_t, gap_s = [], [], [], [], [], []
+    seg_p = np.array([s[0] for s in BONE_SEGMENTS[1:]])
+    seg_d = np.array([s[1] for s in BONE_SEGMENTS[1:]])
+    for k in np.nonzero(idx >= 0)[0]:
+        j = joints[idx[k]]
+        p0, bases, tips, x = simulated_points(np.asarray(sim_bones[k], dtype=np.float64), bone_length)
+        palm.append(np.linalg.norm(p0 - j[JOINT_INDEX["WRIST"]]))
+        base.append(np.linalg.norm(bases - j[_BASES], axis=1))
+        tip.append(np.linalg.norm(tips - j[_TIPS], axis=1))
+        seg = j[seg_d] - j[seg_p]
+        seg /= np.linalg.norm(seg, axis=1, keepdims=True)
+        direction.append(np.degrees(np.arccos(np.clip(np.sum(seg * x[1:], axis=1), -1.0, 1.0))))
+        gap_t.append(np.linalg.norm(j[_TIPS[0]] - j[_TIPS[1]]))
+        gap_s.append(np.linalg.norm(tips[0] - tips[1]))
+    gap_t, gap_s = np.array(gap_t), np.array(gap_s)
+    pinch = gap_t < PINCH_GAP
+    return dict(
+        states=int(len(palm)),
+        palm_mm=_stats(np.array(palm) * 1e3),
+        knuckle_mm=_stats(np.array(base) * 1e3),
+        fingertip_mm=_stats(np.array(tip) * 1e3),
+        fingertip_per_digit_median_mm=np.round(np.median(np.array(tip), axis=0) * 1e3, 1).tolist() if tip else None,
+        phalanx_direction_deg=_stats(direction),
+        thumb_index_gap_tracked_min_mm=round(float(gap_t.min()) * 1e3, 1) if len(gap_t) else None,
+        thumb_index_gap_sim_min_mm=round(float(gap_s.min()) * 1e3, 1) if len(gap_s) else None,
+        pinch_states=int(pinch.sum()),
+        pinch_gap_error_mm=_stats(np.abs(gap_s[pinch] - gap_t[pinch]) * 1e3),
+        pinch_gap_sim_minus_tracked_median_mm=(round(float(np.median(gap_s[pinch] - gap_t[pinch])) * 1e3, 1)
+                                               if pinch.any() else None),
+    )
