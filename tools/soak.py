@@ -70,9 +70,10 @@ class DiagnosticsWatch:
         from rclpy.context import Context
         from rclpy.executors import SingleThreadedExecutor
 
-        from softhand_sim.ros.common import PUB_QOS
+        from softhand_sim.ros.common import PUB_QOS, status_node
 
         self._rclpy = rclpy
+        self._status_node = status_node
         self.context = Context()
         rclpy.init(context=self.context, domain_id=domain_id)
         self.node = rclpy.create_node("softhand_soak_watch", context=self.context)
@@ -88,7 +89,7 @@ class DiagnosticsWatch:
     def _on_diag(self, msg):
         with self._lock:
             for st in msg.status:
-                self.latest[st.name] = {kv.key: kv.value for kv in st.values}
+                self.latest[self._status_node(st.name)] = {kv.key: kv.value for kv in st.values}
 
     def _spin(self):
         while not self._stop.is_set() and self.context.ok():

@@ -12,6 +12,7 @@ from geometry_msgs.msg import PoseArray
 from tests.support.rosproc import RosGraph
 from softhand_sim.ros import msgs as rm
 from softhand_sim.paths import bags_dir
+from softhand_sim.ros.common import status_node
 
 # Timing over real DDS between processes on a shared 2-core machine: one retry absorbs a stall.
 pytestmark = [pytest.mark.ros, pytest.mark.slow, pytest.mark.flaky(reruns=1, reruns_delay=2)]
@@ -29,12 +30,12 @@ class Status:
     def latest(self, name):
         for m in reversed(self.col.msgs):
             for st in m.status:
-                if st.name == name:
+                if status_node(st.name) == name:
                     return rm.diagnostic_values(st)
         return None
 
     def count(self, name):
-        return sum(st.name == name for m in self.col.msgs for st in m.status)
+        return sum(status_node(st.name) == name for m in self.col.msgs for st in m.status)
 
     def fresh(self, g, name, pred, timeout, what, proc=None):
         """Wait for a status of `name` sent from now on that satisfies pred(values); return it."""

@@ -77,7 +77,8 @@ def test_schema_parameters_and_diagnostics(ros_env):
             g.executor.add_node(node)
             g.wait_until(lambda: len(diags) >= 2, 10, "diagnostics")
             st = diags.msgs[0].status[0]
-            assert st.name == "schema_probe" and st.level == b"\x01" and st.message == "slow"
+            assert st.name == "schema_probe: status" and st.level == b"\x01" and st.message == "slow"
+            assert st.hardware_id.startswith("softhand@")
             assert diagnostic_values(st) == {"step_ms": "1.5"}
             state["fail"] = True
             n = len(diags)

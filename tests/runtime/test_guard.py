@@ -15,6 +15,7 @@ from tests.support.rosproc import RosGraph
 from softhand_sim.ros import msgs as rm
 from softhand_sim.params import load_params
 from softhand_sim.runtime import GUARD_CAP_RESIDUAL_FACTOR, GUARD_MAX_KINETIC_ENERGY, SimRuntime
+from softhand_sim.ros.common import status_node
 
 DT = 1.0 / 60.0
 # One Jacobi-preconditioned CG iteration cannot reach 1e-10 on a step whose targets moved: the
@@ -112,7 +113,7 @@ def test_sim_node_reports_guard_in_diagnostics(ros_env):
         def guard_diag():
             for m in reversed(diags.msgs):
                 for st in m.status:
-                    if st.name == "sim_node":
+                    if status_node(st.name) == "sim_node":
                         v = rm.diagnostic_values(st)
                         if int(v.get("rejected_steps", 0)) > 0:
                             return st, v

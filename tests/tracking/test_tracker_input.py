@@ -17,6 +17,7 @@ from tests.support.rosproc import RosGraph
 from softhand_sim.ros import msgs as rm
 from softhand_tracking.adapter import _SEG_DIST, _SEG_PROX
 from softhand_sim.scenarios.tracker_bags import sample
+from softhand_sim.ros.common import status_node
 
 PACED_HZ = 100.0   # categorized bad frames, paced (valid and bad alternate)
 # The subscription is best effort (sensor QoS, depth 5): on a loaded 2-core machine a node stalled
@@ -102,7 +103,7 @@ REASON = {"joint_count": "joint_count", "non_finite": "non_finite", "huge": "out
 def tracking_diag(diags):
     for m in reversed(diags.msgs):
         for st in m.status:
-            if st.name == "tracking_node":
+            if status_node(st.name) == "tracking_node":
                 return {k: v for k, v in rm.diagnostic_values(st).items()}
     return None
 
@@ -110,7 +111,7 @@ def tracking_diag(diags):
 def sim_diag(diags):
     for m in reversed(diags.msgs):
         for st in m.status:
-            if st.name == "sim_node":
+            if status_node(st.name) == "sim_node":
                 return rm.diagnostic_values(st)
     return None
 
@@ -123,7 +124,7 @@ def counts(diags):
 def settle_diag(g, diags, node):
     """Counters from a tracking_node /diagnostics issued after everything sent so far was processed."""
     def n_tracking():
-        return sum(st.name == "tracking_node" for m in diags.msgs for st in m.status)
+        return sum(status_node(st.name) == "tracking_node" for m in diags.msgs for st in m.status)
     n = n_tracking()
     g.wait_until(lambda: n_tracking() >= n + 2, 15, "fresh tracking_node diagnostics", node)
     return counts(diags)

@@ -12,6 +12,7 @@ from tests.support.rosproc import RosGraph
 from softhand_sim.ros.msgs import diagnostic_values, pose_array_to_numpy, stamp_to_seconds
 from softhand_tracking.adapter import TrackerAdapter
 from softhand_sim.scenarios.tracker_bags import FAST_GAP
+from softhand_sim.ros.common import status_node
 
 # Timing over real DDS between processes on a shared 2-core machine: one retry absorbs a stall.
 pytestmark = [pytest.mark.ros, pytest.mark.slow, pytest.mark.flaky(reruns=1, reruns_delay=2)]
@@ -28,7 +29,7 @@ def _tracking_diag(msgs):
     out = []
     for m in msgs:
         for st in m.status:
-            if st.name == "tracking_node":
+            if status_node(st.name) == "tracking_node":
                 out.append(diagnostic_values(st))
     return out
 

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import socket
 import signal
 import sys
 import time
@@ -143,18 +144,36 @@ class RejectionLog:
 # ---------------------------------------------------------------------------------- diagnostics
 
 
+# What each node's status is about: diagnostic_updater's convention names a status
+# '<node>: <task>' and gives it a hardware id.
+DIAGNOSTIC_TASKS = {"sim_node": "simulation", "tracking_node": "tracking loop", "world_node": "engine",
+                    "record_node": "recorder", "play_node": "replay"}
+
+
+def diagnostic_name(node_name: str, task: Optional[str] = None) -> str:
+    """'<node>: <task>' (the diagnostic_updater convention), e.g. 'sim_node: simulation'."""
+    return f"{node_name}: {task or DIAGNOSTIC_TASKS.get(node_name, 'status')}"
+
+
+def status_node(name: str) -> str:
+    """The node part of a status name '<node>: <task>' (the whole name if it has no task)."""
+    return name.split(":", 1)[0].strip()
+
+
 class DiagnosticsPublisher:
     """Publishes /diagnostics at `period` s from `collect() -> (values dict, level, message)`.
 
-    level is 'ok' | 'warn' | 'error' | 'stale'. The status name is '<node name>' unless given.
+    level is 'ok' | 'warn' | 'error' | 'stale'. The status is named '<node>: <task>'
+    (`diagnostic_name`) with the hardware id 'softhand@<host>' unless given.
     An exception in collect() is reported as an ERROR status (with its text), not swallowed.
     """
 
     def __init__(self, node: Node, collect: Callable[[], tuple], period: float = 1.0,
-                 name: Optional[str] = None, topic: str = "/diagnostics"):
+                 name: Optional[str] = None, topic: str = "/diagnostics", hardware_id: Optional[str] = None):
         self._node = node
         self._collect = collect
-        self._name = name or node.get_name()
+        self._name = name or diagnostic_name(node.get_name())
+        self._hardware_id = hardware_id or f"softhand@{socket.gethostname()}"
         self._pub = node.create_publisher(message_class(TOPIC_TYPES["/diagnostics"]), topic, PUB_QOS)
         self._timer = node.create_timer(float(period), self.publish_now)
 
@@ -165,7 +184,8 @@ class DiagnosticsPublisher:
             values, level, message = {}, "error", f"diagnostics failed: {type(exc).__name__}: {exc}"
             self._node.get_logger().error(message)
         stamp = self._node.get_clock().now().to_msg()
-        self._pub.publish(diagnostic_array([diagnostic_status(self._name, values, level, message)], stamp))
+        self._pub.publish(diagnostic_array([diagnostic_status(self._name, values, level, message,
+                                                                   hardware_id=self._hardware_id)], stamp))
 
 
 # ----------------------------------------------------------------------------------- parameters
