@@ -1,4 +1,4 @@
-"""`softhand`: the project's top-level command (demo, bench, hand, params, offline).
+"""`softhand`: the project's top-level command (demo, bench, hand, params, offline, lag).
 
 Each subcommand lives in its own module and is imported only when used, so `softhand --help`
 is instant and `softhand bench` never loads rclpy.
@@ -16,6 +16,8 @@ SUBCOMMANDS = {
     "params": ("softhand_sim.commands.params", "print every node parameter with its default, range, unit and meaning; --yaml writes the params file"),
     "offline": ("softhand_sim.commands.offline", "run the whole pipeline over a bag without ROS, deterministically; "
                                                  "prints the ball's lift, hold and fall"),
+    "lag": ("softhand_sim.commands.lag", "lag and error of the intermediate and simulated hand against the "
+                                         "tracked hand in a recording (time shift, angles, frame counts)"),
 }
 
 
