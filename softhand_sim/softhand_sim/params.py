@@ -133,6 +133,15 @@ TRACKING = {
     "sim_ktheta": P(float, 200.0, "N*m/rad", "coupling to the full-simulation copy, angular (paper: 200)", positive=True),
     "damping_ratio": P(float, 1.0, "-", "critical-damping fraction of each tracked coupling "
                        "(0: the paper's plain springs overshoot 67%)", 0.0, 5.0),
+    "feedback": P(str, "contact", "-", "coupling of the intermediate bones to the simulated ones (sim_kx, sim_ktheta): "
+                  "always (the paper) or contact (only while the simulated hand touches something: no lag from "
+                  "it in free air)", choices=("always", "contact")),
+    "extrapolate": P(bool, True, "-", "move the tracked targets forward to each step's time with the tracked "
+                     "velocity (at most 30 ms): no lag from holding a frame until the next"),
+    "lead": P(float, 0.0, "s", "publish the intermediate bones moved this far ahead with their own velocity, "
+              "stamped with that time (sim_node steps to t + 1/sim_rate with the latest ones)", 0.0, 0.05),
+    "ref_smoothing": P(float, 0.015, "s", "time constant of the low-pass filter on the tracked velocity "
+                       "(damping reference and extrapolation); 0: none", 0.0, 1.0),
     "tracker_timeout": P(float, 0.1, "s", "hold the last target when no valid frame arrived for this long", positive=True),
     "sim_timeout": P(float, 0.5, "s", "forget the full-simulation copy when /hand/bones is older than this", positive=True),
     "tracker_to_world": P(list, [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0], "m, quaternion",
@@ -173,7 +182,13 @@ PLAY = {
     "clock_rate": P(float, 250.0, "Hz", "/clock ticks per second between messages (0: only with messages)", 0.0, 1e4),
     "wait_subscribers": P(int, 0, "-", "wait until this many subscribers match the topic before playing "
                           "(the demo uses 1)", 0, 1000),
+    # [""], not []: ROS cannot type an empty list; empty entries are ignored
+    "wait_for_nodes": P(list, [""], "-", "wait until each of these nodes subscribes to the topic and is matched "
+                        "before playing (the demo names tracking_node and record_node)"),
     "wait_timeout": P(float, 30.0, "s", "give up waiting for subscribers after this long", 0.0),
+    "stamps": P(str, "publish", "-", "header stamps of the replayed frames: publish = their publish time on the "
+                "run's clock, as a live tracker stamps its capture; recorded = as in the bag",
+                choices=("publish", "recorded")),
     # [""], not []: ROS cannot type an empty list; empty entries are ignored
     "replay_topics": P(list, [""], "-", "replay these topics of any type raw with their recorded QoS (empty: the tracker topic)"),
     "replay_all": P(bool, False, "-", "replay every topic of the recording raw with its recorded QoS"),

@@ -8,6 +8,22 @@
   palm kx = sim_kx and k_theta = sim_ktheta; phalanxes kx = 0 (paper: "only orientations for the
   phalanxes"). Without a copy (no sim running) only the tracked coupling acts.
 
+The feedback (the coupling to the simulation's copy) is what keeps the layers stable in contact:
+when contact stops the simulated hand, it pulls the intermediate bones back toward it, so they do
+not run ahead into the object (the two springs act in series on the simulated hand). In free air it
+only costs: with equal stiffnesses a held intermediate bone sits halfway between the tracked and
+the simulated bone, and in motion it is dragged back toward the lagging simulation (issue #17:
+38 -> 22 ms of lag without it on a real recording). `feedback` chooses: "always" (the paper) or
+"contact" (the default): the feedback acts, at full stiffness, while the simulated hand touches
+something (`on_contacts`, /hand/contacts) and for FEEDBACK_HOLD after; its gain ramps over
+FEEDBACK_RAMP, so switching it is no jolt. Contact behaviour is the paper's; free air follows the
+tracked hand alone.
+
+Tracked targets: the tracked pose is held between frames, so on average it is half a frame period
+old (plus transport). With `extrapolate` the target of each step is moved forward to the step
+time with the tracked bones' reference velocity (below), at most MAX_EXTRAPOLATION past the frame,
+scaled by (1 - feedback gain): in contact the targets are the paper's, not pushed into the object.
+
 Integration: backward Euler with one Newton step (docs/DESIGN.md "The step"), per body about its centre
 of mass (the coupled points of Eq. 14 are the COMs, as in the solver), angular velocity in world
 coordinates, q <- exp(dt w) q:
@@ -43,6 +59,10 @@ MAX_REF_SPEED = 5.0      # [m/s] cap on the tracked bones' estimated speed (a gl
 MAX_REF_RATE = 40.0      # [rad/s] cap on their estimated angular rate
 REF_STALE = 0.03         # [s] a reference velocity older than this is dropped (the target stopped)
 REF_SMOOTHING = 0.015    # [s] time constant of the low-pass filter on the reference velocity
+FEEDBACK_HOLD = 0.2      # [s] the feedback stays on this long after the last contact
+FEEDBACK_RAMP = 0.02     # [s] the feedback gain goes 0 <-> 1 over this time (0.05: the press_table skin
+                         # went 5.0 mm into the table, the bound of its test)
+MAX_EXTRAPOLATION = 0.03  # [s] tracked targets are never extrapolated further past their frame
 
 
 @dataclass
@@ -55,8 +75,15 @@ class LoopConfig:
     sim_kx: float = 50.0
     sim_ktheta: float = 200.0
     damping_ratio: float = 1.0
+    feedback: str = "contact"          # "always" (paper) | "contact" (module docstring)
+    extrapolate: bool = True           # move tracked targets forward to the step time
+    ref_smoothing: float = REF_SMOOTHING  # [s] low-pass time constant of the reference velocity
 
     def __post_init__(self):
+        if self.feedback not in ("always", "contact"):
+            raise ValueError(f"loop parameter feedback must be 'always' or 'contact', got {self.feedback!r}")
+        if not (np.isfinite(self.ref_smoothing) and self.ref_smoothing >= 0):
+            raise ValueError(f"loop parameter ref_smoothing must be >= 0 s, got {self.ref_smoothing!r}")
         for name in ("rate", "tracked_kx", "tracked_ktheta", "sim_kx", "sim_ktheta", "damping_ratio"):
             value = float(getattr(self, name))
             if not np.isfinite(value) or value < 0 or (name in ("rate", "tracked_ktheta") and value == 0):
@@ -161,6 +188,19 @@ def step_bodies(pose, vel, mass, com_local, inertia_local, inertia_sqrt_local,
 
 
 @njit(cache=True)
+def extrapolate_poses(poses, vel, com_local, tau):
+    """(B, 7) poses moved forward by tau [s] with COM velocities and world angular velocities vel (B, 6)."""
+    out = np.empty_like(poses)
+    for b in range(poses.shape[0]):
+        xc, _ = _com_world(poses[b], com_local[b])
+        q = integrate_rotation(poses[b, 3:7].copy(), vel[b, 3:6].copy(), tau)
+        rot = quat_to_matrix(q)
+        out[b, 0:3] = xc + tau * vel[b, 0:3] - rot @ com_local[b]
+        out[b, 3:7] = q
+    return out
+
+
+@njit(cache=True)
 def pose_velocity(prev, cur, com_local, dt):
     """(B, 6) COM velocity and world angular velocity taking poses prev -> cur over dt [s]."""
     out = np.empty((prev.shape[0], 6))
@@ -205,6 +245,7 @@ class IntermediateBones:
         self.ref_vel = np.zeros((BONE_COUNT, 6))
         self.sim = self.pose.copy()
         self.sim_active = False
+        self.sim_gain = 1.0            # [0, 1] scale of the feedback stiffnesses (contact gating)
         self.last_energy = 0.0
 
     def reset(self, poses):
@@ -228,8 +269,9 @@ class IntermediateBones:
         c = self.config
         self.last_energy = step_bodies(self.pose, self.vel, self.mass, self.com_local, self.inertia_local,
                                        self.inertia_sqrt_local, self.tracked, self.ref_vel, self.tracked_kx,
-                                       self.tracked_ktheta, self.sim, self.sim_kx, self.sim_ktheta,
-                                       self.sim_active, c.damping_ratio, c.dt)
+                                       self.tracked_ktheta, self.sim, self.sim_gain * self.sim_kx,
+                                       self.sim_gain * self.sim_ktheta, self.sim_active and self.sim_gain > 0.0,
+                                       c.damping_ratio, c.dt)
         return self.pose
 
 
@@ -248,6 +290,8 @@ class TrackingLoop:
     * `step(t)`: one period; returns the intermediate bones (16, 7), or None before the first
       valid frame (nothing is published before there is a hand). The bodies start at rest on the
       first tracked frame.
+    * `on_contacts(count, t)`: the number of active contacts of the simulated hand (/hand/contacts);
+      with feedback "contact" the feedback acts while there are any (module docstring).
     * Dropout: REF_STALE after the last valid frame the damping reference drops to zero (the held
       target no longer moves); `tracker_timeout` [s] after it the loop holds the last target
       and `holding` is True; the next valid frame resumes tracking, the
@@ -271,7 +315,10 @@ class TrackingLoop:
         self._prev_capture = None
         self._prev_tracked = None
         self._ref = np.zeros((BONE_COUNT, 6))
+        self._frame_age0 = 0.0         # [s] age of the last frame when it was received
         self.sim_t = -np.inf
+        self.last_contact_t = -np.inf  # [s] last time the simulated hand touched something
+        self._last_step_t = None
 
     @property
     def tracked(self) -> np.ndarray:
@@ -301,12 +348,17 @@ class TrackingLoop:
             ang = np.linalg.norm(raw[:, 3:], axis=1, keepdims=True)
             raw[:, :3] *= np.minimum(1.0, MAX_REF_SPEED / np.maximum(lin, 1e-12))
             raw[:, 3:] *= np.minimum(1.0, MAX_REF_RATE / np.maximum(ang, 1e-12))
-            alpha = 1.0 - np.exp(-(capture_t - self._prev_capture) / REF_SMOOTHING)
+            smoothing = self.bones.config.ref_smoothing
+            alpha = 1.0 - np.exp(-(capture_t - self._prev_capture) / smoothing) if smoothing > 0 else 1.0
             self._ref += alpha * (raw - self._ref)
         else:
             self._ref[:] = 0.0         # first frame after a gap: no velocity across it
         self._prev_capture, self._prev_tracked = capture_t, poses
         self.bones.set_tracked(poses, self._ref)
+        # the frame's age at receipt, when its stamp is on this clock (one timeline); else 0 (the
+        # receive time stands in for the capture)
+        age = t - capture_t
+        self._frame_age0 = age if 0.0 <= age <= MAX_EXTRAPOLATION else 0.0
         self.last_frame_t = t
         self.holding = False
         return True
@@ -317,6 +369,10 @@ class TrackingLoop:
             raise ValueError(f"sim bones must be 16 finite poses (16, 7), got shape {p.shape}")
         self.bones.set_sim(p)
         self.sim_t = t
+
+    def on_contacts(self, count: int, t: float) -> None:
+        if count > 0:
+            self.last_contact_t = t
 
     def time_since_tracker(self, t: float) -> float:
         return t - self.last_frame_t
@@ -335,7 +391,30 @@ class TrackingLoop:
             self._ref[:] = 0.0
         if self.bones.sim_active and t - self.sim_t > self.sim_timeout:
             self.bones.set_sim(None)
+        self._update_feedback_gain(t)
+        cfg = self.bones.config
+        since = self.time_since_tracker(t)
+        if cfg.extrapolate and not self.holding and self._prev_tracked is not None and since <= REF_STALE:
+            # in contact (gain 1) the paper's loop: the targets are not moved into what stops the hand
+            tau = (1.0 - self.bones.sim_gain) * min(self._frame_age0 + max(since, 0.0), MAX_EXTRAPOLATION)
+            self.bones.tracked[:] = extrapolate_poses(self._prev_tracked, self.bones.ref_vel,
+                                                      self.bones.com_local, tau)
+        elif cfg.extrapolate and self._prev_tracked is not None:
+            self.bones.tracked[:] = self._prev_tracked  # stale: the last frame as it was
         return self.bones.step()
+
+    def _update_feedback_gain(self, t: float) -> None:
+        """Gain of the feedback: 1 with feedback "always"; with "contact" 1 while the hand touched
+        something within FEEDBACK_HOLD, else 0, reached by a ramp over FEEDBACK_RAMP."""
+        if self.bones.config.feedback == "always":
+            self.bones.sim_gain = 1.0
+            return
+        want = 1.0 if t - self.last_contact_t <= FEEDBACK_HOLD else 0.0
+        dt = self.bones.config.dt if self._last_step_t is None else max(t - self._last_step_t, 0.0)
+        self._last_step_t = t
+        g = self.bones.sim_gain
+        step = dt / FEEDBACK_RAMP
+        self.bones.sim_gain = min(want, g + step) if want > g else max(want, g - step)
 
 
 def warm_up() -> None:
@@ -348,3 +427,4 @@ def warm_up() -> None:
     bones.set_sim(poses)
     bones.step()
     pose_velocity(poses, poses, bones.com_local, 0.01)
+    extrapolate_poses(poses, bones.vel, bones.com_local, 0.01)

@@ -1,15 +1,26 @@
 """play_node: replays a tracker rosbag2 (mcap or sqlite3), or any topics of a recording, on its recorded timing.
 
-    softhand-play BAG [--rate R] [--loop] [--start S] [--wait-subscribers N]
+    softhand-play BAG [--rate R] [--loop] [--start S] [--wait-subscribers N] [--wait-for-nodes NODE ...]
+                      [--stamps publish|recorded]
     softhand-play BAG --all | --topics T [T ...]      (a record_node / ros2 bag recording)
     ros2 run softhand_tracking play_node --ros-args -p bag:=BAG -p rate:=2.0
 
-Publishes the bag's /tracker/hand_joints messages (geometry_msgs/PoseArray, header stamps as
-recorded) at wall time  t0 + (bag_time - bag_start) / rate, and /clock (rosgraph_msgs/Clock) with
-the bag time, before each message and every 1/clock_rate s in between, so nodes running with
-use_sim_time see a clock that advances through gaps (a tracker dropout) too. With --loop the
-bag repeats; each repeat shifts both /clock and the header stamps forward by the bag's duration
-plus one median period, so time never goes backwards.
+Publishes the bag's /tracker/hand_joints messages (geometry_msgs/PoseArray) at wall time
+t0 + (bag_time - bag_start) / rate. Stamps (docs/INTERFACE.md "Stamps and clocks"): with
+`stamps: publish` (the default) each frame is stamped, as a live tracker stamps its capture, with
+its publish time on the run's clock: the node clock at the start of the replay plus
+(bag_time - bag_start) / rate, so every stamp of a run is on one clock and an output can be paired
+with the tracker frame it answers; `stamps: recorded` keeps the bag's header stamps. /clock
+(rosgraph_msgs/Clock) carries the same time as the stamps (publish: the run's time; recorded: the
+bag time), before each message and every 1/clock_rate s in between, so nodes running with
+use_sim_time see a clock that advances through gaps (a tracker dropout) too. With --loop the bag
+repeats; each repeat shifts /clock and the stamps forward by the bag's duration plus one median
+period, so time never goes backwards.
+
+Nothing lost (docs/INTERFACE.md "QoS"): the publisher is reliable (it matches best-effort and
+reliable subscribers alike); with --wait-for-nodes the replay starts only once every named node
+has a subscription on the replayed topic(s) and the publisher has matched them, so no subscriber
+misses the first frames; at the end it waits for the reliable subscribers' acknowledgements.
 
 With --all (every topic) or --topics, the recording is replayed like `ros2 bag play`: each topic
 of any type is published raw (the recorded CDR bytes, never deserialized) with the QoS its
@@ -63,7 +74,7 @@ def build_parser() -> argparse.ArgumentParser:
                     "timing, publishing /clock with the bag time (for use_sim_time). Exits when done. "
                     "With --all or --topics, replay a recording's topics with their recorded QoS.",
         epilog="ROS parameters of the same names (bag, rate, loop, start, topic, publish_clock, clock_rate, "
-               "wait_subscribers, wait_timeout, replay_topics, replay_all) work with --ros-args -p NAME:=VALUE; flags override them.")
+               "wait_subscribers, wait_for_nodes, wait_timeout, stamps, replay_topics, replay_all) work with --ros-args -p NAME:=VALUE; flags override them.")
     p.add_argument("bag", nargs="?", default=None, help="rosbag2 directory (folder with metadata.yaml)")
     p.add_argument("--rate", type=float, default=None, help="playback speed factor (default 1.0)")
     p.add_argument("--loop", action="store_true", default=None, help="repeat the bag until stopped")
@@ -75,6 +86,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="/clock ticks per second between messages (default 250, 0: only with messages)")
     p.add_argument("--wait-subscribers", dest="wait_subscribers", type=int, default=None, metavar="N",
                    help="wait until N subscribers match the topic before playing (default 0)")
+    p.add_argument("--wait-for-nodes", dest="wait_for_nodes", nargs="+", default=None, metavar="NODE",
+                   help="wait until each of these nodes subscribes to the topic and is matched")
+    p.add_argument("--stamps", dest="stamps", choices=("publish", "recorded"), default=None,
+                   help="header stamps: publish time on the run's clock (default) or as recorded")
     which = p.add_mutually_exclusive_group()
     which.add_argument("--topics", dest="replay_topics", nargs="+", default=None, metavar="T",
                        help="replay these topics (any type, raw) with their recorded QoS, like ros2 bag play")
@@ -128,6 +143,9 @@ class PlayNode(Node):
         cfg = declare_node_params(self, "play_node")  # schema: softhand_sim/params.py
         cfg.update({k: v for k, v in overrides.items() if v is not None})
         cfg["replay_topics"] = [t for t in cfg["replay_topics"] if t]  # [""]: ROS cannot type an empty list
+        cfg["wait_for_nodes"] = [n.lstrip("/") for n in cfg["wait_for_nodes"] if n]
+        if cfg["stamps"] not in ("publish", "recorded"):
+            raise BagError(f"stamps must be 'publish' or 'recorded', got {cfg['stamps']!r}")
         self.cfg = cfg
         if not cfg["bag"]:
             raise BagError("no bag given: pass BAG on the command line or -p bag:=DIR")
@@ -221,25 +239,56 @@ class PlayNode(Node):
         if self.clock_pub is not None:
             self.clock_pub.publish(Clock(clock=stamp_from_ns(bag_ns)))
 
+    def _pubs_by_topic(self) -> dict:
+        return dict(self.raw_pubs) if self.raw_pubs is not None else {self.cfg["topic"]: self.pub}
+
+    def missing_nodes(self) -> list:
+        """The wait_for_nodes not yet subscribed and matched: a node counts once the graph shows a
+        subscription of it on a replayed topic and that topic's publisher has matched at least as
+        many subscriptions as the named nodes hold there."""
+        want = self.cfg["wait_for_nodes"]
+        if not want:
+            return []
+        seen = set()
+        for topic, pub in self._pubs_by_topic().items():
+            subs = [i for i in self.get_subscriptions_info_by_topic(topic) if i.node_name in want]
+            if subs and pub.get_subscription_count() >= len(subs):
+                seen.update(i.node_name for i in subs)
+        return [n for n in want if n not in seen]
+
     def wait_for_subscribers(self) -> bool:
-        """Block until `wait_subscribers` subscriptions match (BagError-free: a plain timeout error)."""
+        """Block until `wait_subscribers` subscriptions match and every node of `wait_for_nodes` is
+        subscribed and matched (a plain TimeoutError naming what is missing after `wait_timeout`)."""
         want = int(self.cfg["wait_subscribers"])
         deadline = time.monotonic() + float(self.cfg["wait_timeout"])
-        pubs = list(self.raw_pubs.values()) if self.raw_pubs is not None else [self.pub]
+        pubs = list(self._pubs_by_topic().values())
 
         def matched() -> int:
             return sum(p.get_subscription_count() for p in pubs)
 
-        while matched() < want:
+        while matched() < want or self.missing_nodes():
             if time.monotonic() > deadline:
                 where = self.cfg["topic"] if self.raw_pubs is None else "the replayed topics"
-                raise TimeoutError(f"{matched()} of {want} subscribers on "
-                                   f"{where} after {self.cfg['wait_timeout']} s")
+                missing = self.missing_nodes()
+                raise TimeoutError(f"{matched()} of {want} subscribers on {where} after {self.cfg['wait_timeout']} s"
+                                   + (f"; not subscribed and matched: {', '.join(missing)}" if missing else ""))
             if not self._sleep_until(time.monotonic() + 0.05):
                 return False
         # the writer has matched the readers; give the readers' side of discovery a moment too,
         # so the first messages are not sent to a reader that does not know this writer yet
-        return self._sleep_until(time.monotonic() + (0.3 if want else 0.0))
+        waited = want or self.cfg["wait_for_nodes"]
+        return self._sleep_until(time.monotonic() + (0.3 if waited else 0.0))
+
+    def _run_clock_ns(self) -> int:
+        """The node clock now [ns]: the run's time the publish stamps start from."""
+        return self.get_clock().now().nanoseconds
+
+    def _stamp_map(self, t0: int, rate: float):
+        """bag time [ns] -> the time frames are stamped with and /clock carries (module docstring)."""
+        if self.cfg["stamps"] == "recorded":
+            return lambda bag_ns: int(bag_ns)
+        run0 = self._run_clock_ns()
+        return lambda bag_ns: run0 + int(round((int(bag_ns) - t0) / rate))
 
     def play(self) -> None:
         """Replay (forever with loop); returns when done or when ROS shuts down."""
@@ -249,12 +298,14 @@ class PlayNode(Node):
         tick_ns = int(1e9 / self.cfg["clock_rate"]) if self.cfg["clock_rate"] > 0 else 0
         t0 = int(self.stamps[0])
         wall0 = time.monotonic()
+        stamp_of = self._stamp_map(t0, rate)
+        recorded = [stamp_to_ns(m.header.stamp) for m in self.msgs]
         loop = 0
         next_log = wall0 + 10.0
         while True:
             shift = loop * self.loop_shift_ns
             last_clock = None
-            for msg, stamp in zip(self.msgs, self.stamps):
+            for msg, stamp, rec_ns in zip(self.msgs, self.stamps, recorded):
                 bag_ns = int(stamp) + shift
                 # /clock ticks in the gap before this message, on the same wall mapping
                 if tick_ns and self.clock_pub is not None and last_clock is not None:
@@ -262,14 +313,16 @@ class PlayNode(Node):
                     while t < bag_ns:
                         if not self._sleep_until(wall0 + (t - t0) * 1e-9 / rate):
                             return
-                        self._publish_clock(t)
+                        self._publish_clock(stamp_of(t))
                         t += tick_ns
                 if not self._sleep_until(wall0 + (bag_ns - t0) * 1e-9 / rate):
                     return
-                self._publish_clock(bag_ns)
+                self._publish_clock(stamp_of(bag_ns))
                 last_clock = bag_ns
-                if shift:
-                    msg.header.stamp = stamp_from_ns(stamp_to_ns(msg.header.stamp) + self.loop_shift_ns)
+                # publish: the bag time of this frame on the run's clock (its capture, as a live
+                # tracker stamps it); recorded: the bag's header stamp, moved on by the loops
+                msg.header.stamp = stamp_from_ns(stamp_of(bag_ns) if self.cfg["stamps"] == "publish"
+                                                 else rec_ns + shift)
                 self.pub.publish(msg)
                 self.published += 1
                 if time.monotonic() > next_log:
@@ -291,6 +344,7 @@ class PlayNode(Node):
         tick_ns = int(1e9 / self.cfg["clock_rate"]) if self.cfg["clock_rate"] > 0 else 0
         t0 = int(self.stamps[0])
         wall0 = time.monotonic()
+        stamp_of = self._stamp_map(t0, rate)
         loop = 0
         next_log = wall0 + 10.0
         while True:
@@ -303,15 +357,17 @@ class PlayNode(Node):
                     while t < bag_ns:
                         if not self._sleep_until(wall0 + (t - t0) * 1e-9 / rate):
                             return
-                        self._publish_clock(t)
+                        self._publish_clock(stamp_of(t))
                         t += tick_ns
                 if not self._sleep_until(wall0 + (bag_ns - t0) * 1e-9 / rate):
                     return
                 if last_clock != bag_ns:
-                    self._publish_clock(bag_ns)
+                    self._publish_clock(stamp_of(bag_ns))
                 last_clock = bag_ns
-                if shift and topic in self.header_first:
-                    raw = with_header_stamp(raw, header_stamp_ns(raw) + shift)
+                if topic in self.header_first and (shift or self.cfg["stamps"] == "publish"):
+                    # every header stamp moves with the same map as the bag time, so the recorded
+                    # stamps keep their relations (an output still pairs with its tracker frame)
+                    raw = with_header_stamp(raw, stamp_of(header_stamp_ns(raw) + shift))
                 self.raw_pubs[topic].publish(raw)
                 self.published += 1
                 if time.monotonic() > next_log:
@@ -330,7 +386,8 @@ class PlayNode(Node):
 def main(args=None) -> None:
     ns, argv = split_cli(build_parser(), args)
     overrides = {k: getattr(ns, k) for k in ("bag", "rate", "loop", "start", "topic", "publish_clock",
-                                             "clock_rate", "wait_subscribers", "replay_topics", "replay_all")}
+                                             "clock_rate", "wait_subscribers", "wait_for_nodes", "stamps",
+                                             "replay_topics", "replay_all")}
     rclpy.init(args=argv)
     node = None
     code = 0

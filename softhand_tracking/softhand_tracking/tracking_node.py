@@ -3,12 +3,12 @@
     ros2 run softhand_tracking tracking_node [--ros-args -p hand:=left -p rate:=250.0 ...]
     softhand-tracking
 
-Subscribes /tracker/hand_joints (PoseArray of 26 OpenXR joints, best effort) and /hand/bones
-(PoseArray of 16, latest only); publishes /hand/intermediate_bones (PoseArray of 16, frame world,
+Subscribes /tracker/hand_joints (PoseArray of 26 OpenXR joints, best effort, TRACKER_QOS), /hand/bones
+(PoseArray of 16, latest only) and /hand/contacts (only its point count: the feedback acts in contact); publishes /hand/intermediate_bones (PoseArray of 16, frame world,
 stamped with the node-clock time of its step) from a timer at `rate`, and /diagnostics at
 `diagnostics_rate`: achieved step rate, timer period p50/p99 and jitter, compute per step, steps
 run late (a late timer callback runs the steps it missed, so the rate holds on a busy machine) or
-skipped, tracker frames accepted and rejected by reason, time since the last valid tracker frame,
+skipped, tracker frames received, accepted and rejected by reason, time since the last valid tracker frame,
 dropout holds. Nothing is published before the
 first valid tracker frame. The physics and bookkeeping live in `loop.TrackingLoop`; this node
 converts messages, owns the timers and parameters. Honours use_sim_time (all times are the node
@@ -22,21 +22,29 @@ import time
 
 import numpy as np
 from geometry_msgs.msg import PoseArray
+from sensor_msgs.msg import PointCloud2
 from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
-from softhand_sim.ros.common import (LATEST_QOS, PUB_QOS, SENSOR_QOS, DiagnosticsPublisher, RateMeter,
+from softhand_sim.ros.common import (LATEST_QOS, PUB_QOS, DiagnosticsPublisher, RateMeter,
                                      fail, run_node, split_cli)
 from softhand_sim.ros.msgs import pose_array_from_numpy, pose_array_to_numpy, stamp_to_seconds
 from softhand_sim.ros.params import declare_node_params
 from softhand_sim.timing import FixedRateScheduler, StepStats
 from softhand_tracking.adapter import AdapterConfig, TrackerAdapter
-from softhand_tracking.loop import LoopConfig, TrackingLoop, warm_up
+from softhand_tracking.loop import LoopConfig, TrackingLoop, extrapolate_poses, warm_up
 
 NODE_NAME = "tracking_node"
 # A late timer callback runs the steps it missed (each published, stamped with its own time) so the
 # loop keeps `rate` on average on a busy machine; more than this far behind, it skips ahead.
 MAX_CATCH_UP_S = 0.1
 REJECT_LOG_PERIOD = 2.0  # [s] at most one log line about rejected tracker frames per period
+#: The tracker subscription: best effort, so that every tracker matches (a live one offers sensor-data
+#: QoS), and deep: a reliable publisher (play_node) then delivers best effort, where the only loss on
+#: one machine is a reader queue that overflows while the node is busy. Keep-last 5 lost frames that
+#: arrived in one 176 ms burst (issue #17); 200 frames are ~2 s of a 100 Hz tracker.
+TRACKER_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=200,
+                         reliability=ReliabilityPolicy.BEST_EFFORT, durability=DurabilityPolicy.VOLATILE)
 
 
 class TrackingNode(Node):
@@ -50,16 +58,22 @@ class TrackingNode(Node):
             hand=p["hand"], world_from_tracker=np.asarray(p["tracker_to_world"], dtype=float),
             bone_length_min=p["min_bone_length"], bone_length_max=p["max_bone_length"]))
         loop_config = LoopConfig(rate=p["rate"], tracked_kx=p["tracked_kx"], tracked_ktheta=p["tracked_ktheta"],
-                                 sim_kx=p["sim_kx"], sim_ktheta=p["sim_ktheta"], damping_ratio=p["damping_ratio"])
+                                 sim_kx=p["sim_kx"], sim_ktheta=p["sim_ktheta"], damping_ratio=p["damping_ratio"],
+                                 feedback=p["feedback"], extrapolate=p["extrapolate"],
+                                 ref_smoothing=p["ref_smoothing"])
         self.loop = TrackingLoop(loop_config, adapter, tracker_timeout=p["tracker_timeout"],
                                  sim_timeout=p["sim_timeout"])
         warm_up()  # numba kernels compiled/loaded before the first frame, not during it
         self.pub = self.create_publisher(PoseArray, "/hand/intermediate_bones", PUB_QOS)
-        self.create_subscription(PoseArray, "/tracker/hand_joints", self.on_tracker, SENSOR_QOS)
+        self.create_subscription(PoseArray, "/tracker/hand_joints", self.on_tracker, TRACKER_QOS)
         self.create_subscription(PoseArray, "/hand/bones", self.on_sim_bones, LATEST_QOS)
+        # contact gates the feedback (parameter feedback: contact); only the count is read
+        self.create_subscription(PointCloud2, "/hand/contacts", self.on_contacts, LATEST_QOS)
         self.rate_meter = RateMeter(window=int(5 * p["rate"]))
         self.step_ms = StepStats(window=int(5 * p["rate"]))  # [ms] compute per step
         self.published = 0
+        self.lead_ns = int(round(p["lead"] * 1e9))
+        self.frames_received = 0
         self.bad_sim_messages = 0
         # late_steps: run late by a catch-up; skipped_steps: given up, more than MAX_CATCH_UP_S behind
         self.scheduler = FixedRateScheduler(p["rate"], max_catch_up=max(1, int(MAX_CATCH_UP_S * p["rate"])))
@@ -76,6 +90,7 @@ class TrackingNode(Node):
         return self.get_clock().now().nanoseconds * 1e-9
 
     def on_tracker(self, msg: PoseArray) -> None:
+        self.frames_received += 1
         joints = pose_array_to_numpy(msg)
         was_holding = self.loop.holding
         if self.loop.on_tracker(joints, self.now_s(), stamp_to_seconds(msg.header.stamp)):
@@ -95,6 +110,9 @@ class TrackingNode(Node):
             self.bad_sim_messages += 1
             self.get_logger().warn(f"ignored /hand/bones: {exc}", throttle_duration_sec=5.0)
 
+    def on_contacts(self, msg: PointCloud2) -> None:
+        self.loop.on_contacts(int(msg.width) * int(msg.height), self.now_s())
+
     def on_timer(self) -> None:
         self.rate_meter.tick()
         for t_ns in self.scheduler.due(self.get_clock().now().nanoseconds):
@@ -110,7 +128,9 @@ class TrackingNode(Node):
             self.get_logger().warn(f"no valid tracker frame for {self.loop.tracker_timeout:.3f} s: holding the last target")
         if poses is None or not np.all(np.isfinite(poses)):
             return  # nothing to publish before the first frame; never a non-finite pose
-        self.pub.publish(pose_array_from_numpy(poses, int(t_ns)))
+        if self.lead_ns:  # the pose lead seconds ahead, stamped with that time (parameter lead)
+            poses = extrapolate_poses(poses, self.loop.bones.vel, self.loop.bones.com_local, self.lead_ns * 1e-9)
+        self.pub.publish(pose_array_from_numpy(poses, int(t_ns) + self.lead_ns))
         self.published += 1
 
     def collect_diagnostics(self):
@@ -129,12 +149,13 @@ class TrackingNode(Node):
             "step_ms_max": self.step_ms.max(),
             "published": self.published, "late_steps": self.scheduler.late_steps,
             "skipped_steps": self.scheduler.skipped_steps,
-            "frames_accepted": adapter.accepted,
+            "frames_received": self.frames_received, "frames_accepted": adapter.accepted,
             "frames_rejected": sum(adapter.rejected.values()),
             **{f"rejected_{reason}": n for reason, n in adapter.rejected.items()},
             "time_since_tracker_s": since if np.isfinite(since) else -1.0,
             "holding": self.loop.holding, "holds": self.loop.holds,
             "sim_copy": self.loop.bones.sim_active, "bad_sim_messages": self.bad_sim_messages,
+            "feedback_gain": self.loop.bones.sim_gain,
         }
         if not self.loop.initialized:
             return values, "warn", "waiting for the first valid tracker frame"

@@ -88,10 +88,21 @@ def test_every_bag_rates_finite_and_readable(tmp_path, bag):
     assert summary["all_finite"], summary
     decoded = check_recording_opens_everywhere(out / "bag")
     assert decoded == summary["bag_messages"]
+    check_nothing_lost(summary)
     if bag in ("grasp_lift", "pinch_lift"):
         check_grasp(out / "bag")
     if bag == "press_table":
         check_press(out / "bag")
+
+
+def check_nothing_lost(summary):
+    """Every frame of the input bag is published, recorded, received and accepted by tracking_node
+    (the sample bags hold no invalid frame), none rejected (issue #17 item 5)."""
+    frames = summary["tracker_frames"]
+    n = frames["in_bag"]
+    assert n > 100, frames
+    assert (frames["published"], frames["recorded"], frames["received"], frames["accepted"]) == (n, n, n, n), frames
+    assert frames["rejected"] == 0, frames
 
 
 def check_grasp(bag_dir):
@@ -133,6 +144,7 @@ def test_demo_command_end_to_end(tmp_path):
     out, summary, stdout = run_demo(tmp_path, "grasp_short", preview=True)
     assert (out / "bag" / "metadata.yaml").is_file()
     assert (out / "preview.png").stat().st_size > 10_000 and (out / "preview.gif").is_file()
-    assert "sim step" in stdout and "latency" in stdout
+    assert "sim step" in stdout and "latency" in stdout and "tracker frames" in stdout
+    check_nothing_lost(summary)
     assert all(code == 0 for code in summary["exit_codes"].values()), summary["exit_codes"]
     assert summary["bag_mb"] < 100

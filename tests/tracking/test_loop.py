@@ -190,3 +190,57 @@ def test_bad_parameters_name_the_key():
         LoopConfig(damping_ratio=-1)
     with pytest.raises(ValueError, match="tracker_timeout"):
         TrackingLoop(tracker_timeout=0)
+
+
+def _held_with_sim(feedback, contact_from=None, steps=500):
+    """A held tracked pose and a sim copy 4 cm / 0.4 rad away; palm COM per step. With contact_from
+    (a step index) the loop is told of contacts from then on."""
+    cfg = LoopConfig(tracked_kx=50, sim_kx=150, tracked_ktheta=200, sim_ktheta=600, feedback=feedback)
+    loop = TrackingLoop(cfg)
+    start = _rest_bones()
+    sim = _moved(start, loop.bones.com_local, np.array([0.04, 0.0, 0.0]), np.array([0.0, 0.0, 0.4]))
+    joints, _ = forward_kinematics(np.array([0, 0, 0.9, 0, 0, 0, 1.0]), np.full((5, 4), 0.2))
+    com = []
+    for k in range(steps):
+        t = k * DT
+        if k % 3 == 0:
+            assert loop.on_tracker(joints, t, t)
+        loop.on_sim_bones(sim, t)
+        if contact_from is not None and k >= contact_from:
+            loop.on_contacts(12, t)
+        com.append(_com(loop.step(t), loop.bones.com_local)[0])
+    return np.array(com), _com(start, loop.bones.com_local)[0], _com(sim, loop.bones.com_local)[0]
+
+
+def test_feedback_acts_only_in_contact():
+    """feedback "contact": in free air the palm settles on the tracked palm (no pull toward the sim copy);
+    once the simulated hand touches something it settles at the stiffness-weighted mean as with the
+    paper's "always", reached without a jump (the gain ramps: no step moves the palm over a tenth of the way)."""
+    com, c_track, c_sim = _held_with_sim("contact", contact_from=250)
+    weighted = (50 * c_track + 150 * c_sim) / 200
+    np.testing.assert_allclose(com[249], c_track, atol=2e-4)
+    np.testing.assert_allclose(com[-1], weighted, atol=2e-4)
+    assert np.linalg.norm(np.diff(com[250:], axis=0), axis=1).max() < 0.1 * np.linalg.norm(weighted - c_track)
+    always, _, _ = _held_with_sim("always")
+    np.testing.assert_allclose(always[249], weighted, atol=2e-4)
+
+
+def test_extrapolation_removes_the_frame_hold_lag():
+    """A palm moving at 0.5 m/s, frames at 50 Hz: with the targets extrapolated to each step's time the
+    intermediate palm trails the true palm by < 1 mm in steady motion; holding each frame it trails by
+    about half a frame period more (10 ms: >= 2 mm)."""
+    errs = {}
+    for extrapolate in (True, False):
+        loop = TrackingLoop(LoopConfig(extrapolate=extrapolate))
+        err = []
+        for k in range(250):
+            t = k * DT
+            x = lambda tt: np.array([0.5 * tt, 0.0, 0.9])
+            if k % 5 == 0:  # a frame every 20 ms
+                joints, _ = forward_kinematics(np.r_[x(t), 0, 0, 0, 1.0], np.full((5, 4), 0.2))
+                assert loop.on_tracker(joints, t, t)
+            out = loop.step(t)
+            ref, _ = forward_kinematics(np.r_[x(t), 0, 0, 0, 1.0], np.full((5, 4), 0.2))
+            err.append(np.linalg.norm(out[0, :3] - bone_frames(ref[:, :3])[0, :3]))
+        errs[extrapolate] = np.median(err[150:])
+    assert errs[True] < 0.001 and errs[False] > 0.002, errs

@@ -15,7 +15,7 @@ from shape_msgs.msg import Mesh
 from std_msgs.msg import String
 
 from tests.support.rosproc import RosGraph, RosProc
-from softhand_sim.ros.common import LATCHED_QOS
+from softhand_sim.ros.common import LATCHED_QOS, PUB_QOS
 from softhand_sim.ros.msgs import mesh_from_numpy, pose_array_from_numpy, pose_array_to_numpy, stamp_to_ns
 from softhand_sim.ros.bagio import add_topic, flush_chunk, mcap_is_closed, open_writer, read_topic, write_bag
 
@@ -41,21 +41,29 @@ def tracker_bag(path, periods_s, storage="mcap", topic=TOPIC):
 
 
 def test_replay_count_timing_and_clock(ros_env, tmp_path):
-    """Every message arrives once, in order, with recorded stamps; arrival spacing follows the bag; /clock = bag time."""
+    """Every message arrives once, in order; arrival spacing follows the bag; each frame is stamped with
+    its publish time on the run's clock (the bag's spacing exactly, near the receive time on the
+    wall clock) and /clock carries that same time."""
     rng = np.random.default_rng(0)
     periods = rng.uniform(0.005, 0.03, size=59)  # jittered 60-message bag, ~1.1 s
     stamps = tracker_bag(tmp_path / "bag", periods)
     with RosGraph(ros_env) as g:
         joints = g.listen(TOPIC, PoseArray)
         clock = g.listen("/clock", Clock)
-        proc = g.start(["softhand-play", str(tmp_path / "bag"), "--wait-subscribers", "1", "--clock-rate", "200"])
+        received_wall = []  # the collector keeps monotonic times; the stamps are on the wall clock
+        g.node.create_subscription(PoseArray, TOPIC, lambda m: received_wall.append(time.time_ns()), PUB_QOS)
+        proc = g.start(["softhand-play", str(tmp_path / "bag"), "--wait-for-nodes", "test_probe",
+                        "--clock-rate", "200"])
         assert proc.wait(30) == 0, proc.output()
         g.wait_until(lambda: len(joints) >= len(stamps), 5,
                      f"all messages (got {len(joints)}: {[pose_array_to_numpy(m)[0, 0] for m in joints.msgs]})")
         assert len(joints) == len(stamps)
         got_index = [pose_array_to_numpy(m)[0, 0] for m in joints.msgs]
         assert got_index == list(range(len(stamps)))
-        assert [stamp_to_ns(m.header.stamp) for m in joints.msgs] == stamps.tolist()
+        got = np.array([stamp_to_ns(m.header.stamp) for m in joints.msgs])
+        np.testing.assert_array_equal(np.diff(got), np.diff(stamps))  # the bag's spacing, re-timed
+        late = (np.asarray(received_wall[:len(got)]) - got) * 1e-9   # receive minus stamp, wall clock
+        assert np.median(late) == pytest.approx(0.0, abs=0.02), late
         # timing: arrival time minus bag time is a constant offset up to scheduling noise
         arrival = np.asarray(joints.times)
         skew = (arrival - arrival[0]) - (stamps - stamps[0]) * 1e-9
@@ -63,16 +71,51 @@ def test_replay_count_timing_and_clock(ros_env, tmp_path):
         assert np.percentile(np.abs(skew), 90) < 0.02
         duration = arrival[-1] - arrival[0]
         assert duration == pytest.approx((stamps[-1] - stamps[0]) * 1e-9, abs=0.05)
-        # /clock: bag time, monotonic, every message stamp present, ticks in between at ~200 Hz
+        # /clock: the stamps' time, monotonic, every message stamp present, ticks in between at ~200 Hz
         clock_ns = np.array([stamp_to_ns(c.clock) for c in clock.msgs])
         assert np.all(np.diff(clock_ns) > 0)
         # play waits for the /tracker subscriber only, so /clock discovery may miss the first ticks
-        assert clock_ns[0] - stamps[0] < 0.5e9
-        assert set(stamps[stamps >= clock_ns[0]].tolist()) <= set(clock_ns.tolist())
-        assert clock_ns[-1] == stamps[-1]
-        span = (stamps[-1] - stamps[0]) * 1e-9
-        assert len(clock_ns) >= 0.8 * 200 * (span - (clock_ns[0] - stamps[0]) * 1e-9)
+        assert clock_ns[0] - got[0] < 0.5e9
+        assert set(got[got >= clock_ns[0]].tolist()) <= set(clock_ns.tolist())
+        assert clock_ns[-1] == got[-1]
+        span = (got[-1] - got[0]) * 1e-9
+        assert len(clock_ns) >= 0.8 * 200 * (span - (clock_ns[0] - got[0]) * 1e-9)
     assert "done: published 60 messages" in proc.output()
+
+
+def test_recorded_stamps_on_request(ros_env, tmp_path):
+    """--stamps recorded keeps the bag's header stamps and /clock carries the bag time."""
+    stamps = tracker_bag(tmp_path / "bag", [0.01] * 19)
+    with RosGraph(ros_env) as g:
+        joints = g.listen(TOPIC, PoseArray)
+        clock = g.listen("/clock", Clock)
+        proc = g.start(["softhand-play", str(tmp_path / "bag"), "--stamps", "recorded", "--wait-subscribers", "1"])
+        assert proc.wait(30) == 0, proc.output()
+        g.wait_until(lambda: len(joints) >= len(stamps), 5, "all messages")
+        assert [stamp_to_ns(m.header.stamp) for m in joints.msgs] == stamps.tolist()
+        assert stamp_to_ns(clock.msgs[-1].clock) == stamps[-1]
+
+
+def test_waits_for_the_named_nodes(ros_env, tmp_path):
+    """--wait-for-nodes: no frame is published before every named node subscribes (a node that never
+    comes: exit 1 naming it); a best-effort subscriber of the named node gets every frame."""
+    tracker_bag(tmp_path / "bag", [0.01] * 4)
+    with RosGraph(ros_env) as g:
+        proc = g.start(["softhand-play", str(tmp_path / "bag"), "--wait-for-nodes", "test_probe", "ghost_node",
+                        "--ros-args", "-p", "wait_timeout:=3.0"])
+        joints = g.listen(TOPIC, PoseArray)
+        assert proc.wait(30) == 1
+        assert "not subscribed and matched: ghost_node" in proc.output() and len(joints) == 0
+    stamps = tracker_bag(tmp_path / "bag2", [0.002] * 199)  # a 500 Hz burst of 200 frames
+    best_effort = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=200, reliability=ReliabilityPolicy.BEST_EFFORT,
+                             durability=DurabilityPolicy.VOLATILE)
+    with RosGraph(ros_env) as g:
+        proc = g.start(["softhand-play", str(tmp_path / "bag2"), "--wait-for-nodes", "test_probe"])
+        time.sleep(1.0)  # the player is up and waiting before the subscriber exists
+        joints = g.listen(TOPIC, PoseArray, best_effort)
+        assert proc.wait(30) == 0, proc.output()
+        g.wait_until(lambda: len(joints) >= len(stamps), 5, f"all frames (got {len(joints)})")
+        assert [pose_array_to_numpy(m)[0, 0] for m in joints.msgs] == list(range(len(stamps)))
 
 
 def test_rate_parameter_and_sqlite_bag_via_ros_args(ros_env, tmp_path):

@@ -1,4 +1,4 @@
-"""`softhand`: the project's top-level command (demo, bench, hand, params, calibrate, offline).
+"""`softhand`: the project's top-level command (demo, bench, hand, model, params, calibrate, fidelity, offline, lag).
 
 Each subcommand lives in its own module and is imported only when used, so `softhand --help`
 is instant and `softhand bench` never loads rclpy.
@@ -22,6 +22,8 @@ SUBCOMMANDS = {
                                                   "simulated vs the tracked hand (recording or --offline)"),
     "offline": ("softhand_sim.commands.offline", "run the whole pipeline over a bag without ROS, deterministically; "
                                                  "prints the ball's lift, hold and fall"),
+    "lag": ("softhand_sim.commands.lag", "lag and error of the intermediate and simulated hand against the "
+                                         "tracked hand in a recording (time shift, angles, frame counts)"),
 }
 
 

@@ -35,6 +35,12 @@ NODE_SET = (
 )
 SIM_NODES = NODE_SET[:3]  # started first; record_node and play_node follow once these are up
 READY_TOPICS = ("/world/object_states", "/hand/bones", "/hand/intermediate_bones")
+# play_node starts only once these have subscribed to the tracker topic and been matched: no frame
+# of the bag is lost to a subscriber that joined late (issue #17)
+TRACKER_SUBSCRIBERS = ("tracking_node", "record_node")
+# after the last frame: its answers travel tracking -> sim -> world -> record, and tracking_node's
+# /diagnostics (1 Hz) reports its final frame counts before the recorder stops
+DRAIN_S = 1.6
 
 
 def console_script(name):
@@ -113,19 +119,21 @@ def run_demo(bag, out_dir, rate=1.0, params_file=None, preview=True, startup_tim
         if missing:
             raise SystemExit(f"error: no publisher on {missing} after {startup_timeout:.0f} s; see {out_dir / 'logs'}")
         procs.start("record", [console_script("softhand-record"), *ros, "-p", f"output:={out_dir / 'bag'}"])
-        time.sleep(2.0)  # let the recorder discover every publisher before the first tracker frame
+        time.sleep(1.0)  # let the recorder discover the nodes' publishers (the tracker's is waited for below)
         say(f"  nodes up after {time.monotonic() - t0:.1f} s; playing {bag.name} at rate {rate}")
-        play = procs.start("play", [console_script("softhand-play"), str(bag), "--rate", str(rate), "--wait-subscribers", "1", *ros])
+        play = procs.start("play", [console_script("softhand-play"), str(bag), "--rate", str(rate),
+                                    "--wait-for-nodes", *TRACKER_SUBSCRIBERS, *ros])
         play.wait()
         if play.returncode != 0:
             raise SystemExit(f"error: play_node failed:\n{procs.tail('play')}")
-        time.sleep(1.0)  # the last frames travel through tracking -> sim -> world -> record
+        time.sleep(DRAIN_S)
     finally:
         codes = procs.stop_all()
     say(f"  stopped: {codes}")
     from softhand_sim.commands.run_summary import summarize_run
 
-    summary = summarize_run(out_dir / "bag", bag_name=bag.name, exit_codes=codes)
+    summary = summarize_run(out_dir / "bag", bag_name=bag.name, exit_codes=codes, input_bag=bag,
+                            play_log=out_dir / "logs" / "play.log")
     (out_dir / "summary.json").write_text(json.dumps(summary, indent=2))
     if preview:
         from softhand_sim.commands.preview import render_preview
@@ -148,6 +156,7 @@ def format_summary(s, out_dir):
         f"  tracker -> /hand/bones latency: p50 {s.get('latency_ms_p50', float('nan')):.1f} ms, "
         f"p99 {s.get('latency_ms_p99', float('nan')):.1f} ms (first /hand/bones "
         f"{s.get('startup_s', float('nan')):.2f} s after the first tracker frame)",
+        "  tracker frames: " + ", ".join(f"{k} {v}" for k, v in s.get("tracker_frames", {}).items()),
         f"  max active contacts: {s.get('max_contacts', 0)}",
         f"  ball: lifted {100 * s.get('ball_lift_m', 0.0):.1f} cm (lifted >= 8 cm: {s.get('ball_lifted', False)})",
         f"  recording: {s.get('bag_messages', 0)} messages, {s.get('bag_mb', 0.0):.1f} MB, all values finite: "

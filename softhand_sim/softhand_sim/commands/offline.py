@@ -142,7 +142,9 @@ def run_pipeline(bag=None, synth=None, until=None, sim_latency=None, sim_overrid
     adapter = TrackerAdapter(AdapterConfig(hand=tp["hand"], world_from_tracker=np.asarray(tp["tracker_to_world"], float),
                                            bone_length_min=tp["min_bone_length"], bone_length_max=tp["max_bone_length"]))
     loop = TrackingLoop(LoopConfig(rate=tp["rate"], tracked_kx=tp["tracked_kx"], tracked_ktheta=tp["tracked_ktheta"],
-                                   sim_kx=tp["sim_kx"], sim_ktheta=tp["sim_ktheta"], damping_ratio=tp["damping_ratio"]),
+                                   sim_kx=tp["sim_kx"], sim_ktheta=tp["sim_ktheta"], damping_ratio=tp["damping_ratio"],
+                                   feedback=tp["feedback"], extrapolate=tp["extrapolate"],
+                                   ref_smoothing=tp["ref_smoothing"]),
                         adapter, tracker_timeout=tp["tracker_timeout"], sim_timeout=tp["sim_timeout"])
     sim_dt = 1.0 / sp["sim_rate"]
     latency = sim_dt if sim_latency is None else float(sim_latency)
@@ -184,8 +186,9 @@ def run_pipeline(bag=None, synth=None, until=None, sim_latency=None, sim_overrid
                                       world_state.accel, world_state.stamp)
             push((payload + 1) * world.dt, _WORLD, payload + 1)
         elif kind == _SIM_OUT:
-            out_t, bones, names, poses, twists, accels = payload
+            out_t, bones, names, poses, twists, accels, n_contacts = payload
             loop.on_sim_bones(bones, t)
+            loop.on_contacts(n_contacts, t)  # /hand/contacts: the feedback acts in contact
             for j, name in enumerate(names):
                 world.set_copy(name, poses[j], twists[j], accels[j], out_t)
         elif kind == _SIM:
@@ -195,7 +198,7 @@ def run_pipeline(bag=None, synth=None, until=None, sim_latency=None, sim_overrid
                 continue
             push(t + latency, _SIM_OUT, (out.t, out.bone_poses.copy(), list(out.object_names),
                                          out.object_poses.copy(), out.object_twists.copy(),
-                                         out.object_accels.copy()))
+                                         out.object_accels.copy(), len(out.contacts["points"])))
             c = out.contacts
             on_ball = c["objects"] == ball_contact
             palm = out.bone_poses[0]

@@ -8,6 +8,8 @@ Measured, not reported by the nodes alone:
   before the first /hand/bones only measure start-up: that wait is `startup_s` (first tracker
   frame -> first /hand/bones);
 - sim step time p50/p99 from sim_node's own /diagnostics;
+- tracker frames: in the input bag, published (play_node's log), recorded, and received / accepted /
+  rejected by tracking_node (its last /diagnostics): nothing may be lost on replay (issue #17);
 - max active contacts from /hand/contacts; ball lift from the engine side /world/object_states;
 - finiteness of every numeric field of every recorded message.
 """
@@ -61,7 +63,28 @@ def frame_latency_ms(tracker_t, bones_t):
     return (b[idx[ok]] - tr[ok]) * 1e3, float(b[0] - tr[0])
 
 
-def summarize_run(bag_dir, bag_name="", exit_codes=None):
+def _input_frames(input_bag):
+    """Messages on /tracker/hand_joints in the input bag (None if it cannot be read)."""
+    try:
+        from softhand_sim.ros.bagio import read_topic
+
+        return len(read_topic(input_bag, "/tracker/hand_joints", "geometry_msgs/msg/PoseArray").stamps_ns)
+    except Exception:
+        return None
+
+
+def _published_frames(play_log):
+    """N of play_node's 'done: published N messages' log line (None if absent)."""
+    import re
+
+    try:
+        found = re.findall(r"done: published (\d+) messages", Path(play_log).read_text(errors="replace"))
+    except OSError:
+        return None
+    return int(found[-1]) if found else None
+
+
+def summarize_run(bag_dir, bag_name="", exit_codes=None, input_bag=None, play_log=None):
     bag_dir = Path(bag_dir)
     summary = {"bag": bag_name, "exit_codes": exit_codes or {}}
     if not bag_dir.exists():
@@ -71,6 +94,7 @@ def summarize_run(bag_dir, bag_name="", exit_codes=None):
     times = defaultdict(list)
     tracker_t, bones_t = [], []
     step_p50, step_p99 = [], []
+    tracking_counts = {}
     max_contacts = 0
     ball_z = []
     all_finite = True
@@ -100,6 +124,11 @@ def summarize_run(bag_dir, bag_name="", exit_codes=None):
                     ball_z.append(msg.points[0].transforms[names.index(LIFT_OBJECT)].translation.z)
             elif conn.topic == "/diagnostics":
                 for status in msg.status:
+                    if status.name == "tracking_node":  # the last report holds the final counts
+                        values = {kv.key: kv.value for kv in status.values}
+                        for key in ("frames_received", "frames_accepted", "frames_rejected"):
+                            if key in values:
+                                tracking_counts[key.removeprefix("frames_")] = int(float(values[key]))
                     if "sim" in status.name:
                         values = {kv.key: kv.value for kv in status.values}
                         try:
@@ -115,7 +144,11 @@ def summarize_run(bag_dir, bag_name="", exit_codes=None):
             rates[topic] = (len(ts) - 1) / (ts[-1] - ts[0])
     latency, startup_s = frame_latency_ms(tracker_t, bones_t)
     size = sum(f.stat().st_size for f in bag_dir.rglob("*") if f.is_file())
+    frames = {"in_bag": _input_frames(input_bag) if input_bag is not None else None,
+              "published": _published_frames(play_log) if play_log is not None else None,
+              "recorded": len(times.get("/tracker/hand_joints", [])), **tracking_counts}
     summary.update({
+        "tracker_frames": {k: v for k, v in frames.items() if v is not None},
         "bag_messages": count,
         "bag_mb": size / 1e6,
         "messages_per_topic": {k: len(v) for k, v in sorted(times.items())},

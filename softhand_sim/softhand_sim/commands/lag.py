@@ -1,0 +1,272 @@
+"""`softhand lag RUN`: how far, and by how much, the simulated hand trails the tracked hand (issue #17).
+
+    softhand lag runs/<stamp>            # a demo run directory (its bag/) or any recording
+    softhand lag RECORDING --json out.json
+
+Reads a recording with /tracker/hand_joints, /hand/intermediate_bones and /hand/bones (rosbags, no
+ROS needed) and reports, for the intermediate layer and for the simulated skeleton each:
+
+* lag [ms]: the time shift tau that best aligns the layer with the tracked hand, i.e. minimises the
+  mean squared difference between the layer at time t and the tracked hand at t - tau (tracked
+  bones linearly interpolated between frames; frames further apart than MAX_GAP_S are not
+  bridged). Separately for the 15 phalanx directions (each bone's +x axis; mean squared angle)
+  and the palm position (mean squared distance); searched on a 1 ms grid over SHIFT_RANGE_MS and
+  refined by a parabola through the best three;
+* errors at zero shift: phalanx direction angle, palm position and palm orientation (median /
+  p95 / max), and the phalanx angle p95 at the best shift (what is left once the lag is removed);
+* tracker frames: recorded, and tracking_node's received / accepted / rejected (its last
+  /diagnostics).
+
+Time base: header stamps (docs/INTERFACE.md "Stamps and clocks": tracker frames carry their capture
+time on the run's clock, outputs the time of their state). A recording whose tracker stamps are
+not on the outputs' clock (a replay with `stamps: recorded`, or a run made before issue #17) is
+measured by receive times instead, and the report says so (`time_base`).
+
+The tracked bones are the tracker adapter's (softhand_tracking.adapter, default configuration:
+the demo's tracker_to_world is the identity), so tracked and simulated bones are compared in the
+same frames. Self-contained: the fidelity report of positions and fingertips is another command.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+TRACKER = "/tracker/hand_joints"
+LAYERS = {"intermediate": "/hand/intermediate_bones", "sim": "/hand/bones"}
+SHIFT_RANGE_MS = (-60.0, 250.0)  # [ms] lags searched (negative: the layer leads)
+MAX_GAP_S = 0.05                 # [s] tracked frames further apart are not interpolated across
+CLOCK_MISMATCH_S = 1.0           # [s] tracker vs output stamps further apart: not one clock
+
+
+@dataclass
+class Series:
+    """Bone poses over time: t (n,) [s] ascending, poses (n, 16, 7) [m, quaternion x y z w]."""
+
+    t: np.ndarray
+    poses: np.ndarray
+
+
+def quat_rotate_x(q: np.ndarray) -> np.ndarray:
+    """(..., 3) the unit +x axis rotated by quaternions q (..., 4) [x y z w] (each bone's direction)."""
+    x, y, z, w = (q[..., i] for i in range(4))
+    return np.stack([1 - 2 * (y * y + z * z), 2 * (x * y + w * z), 2 * (x * z - w * y)], axis=-1)
+
+
+def quat_angle(qa: np.ndarray, qb: np.ndarray) -> np.ndarray:
+    """(...,) angle [rad] of the rotation between unit quaternions qa and qb (..., 4)."""
+    d = np.abs(np.sum(qa * qb, axis=-1))
+    return 2.0 * np.arccos(np.clip(d, 0.0, 1.0))
+
+
+def _angle(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """(...,) angle [rad] between vectors a and b (..., 3)."""
+    cross = np.linalg.norm(np.cross(a, b), axis=-1)
+    return np.arctan2(cross, np.sum(a * b, axis=-1))
+
+
+def _interp(ref: Series, t: np.ndarray):
+    """Tracked phalanx directions (m, 15, 3), palm positions (m, 3), palm quaternions (m, 4) at times
+    t (m,), and a mask of the times that lie inside the tracked series between frames at most
+    MAX_GAP_S apart (values elsewhere are meaningless)."""
+    i = np.searchsorted(ref.t, t, side="right")
+    ok = (i > 0) & (i < ref.t.size)
+    i = np.clip(i, 1, ref.t.size - 1)
+    t0, t1 = ref.t[i - 1], ref.t[i]
+    ok &= (t1 - t0) <= MAX_GAP_S
+    w = np.clip((t - t0) / np.maximum(t1 - t0, 1e-12), 0.0, 1.0)
+    p0, p1 = ref.poses[i - 1], ref.poses[i]
+    dirs = (1 - w)[:, None, None] * quat_rotate_x(p0[:, 1:, 3:]) + w[:, None, None] * quat_rotate_x(p1[:, 1:, 3:])
+    dirs /= np.linalg.norm(dirs, axis=-1, keepdims=True)
+    palm = (1 - w)[:, None] * p0[:, 0, :3] + w[:, None] * p1[:, 0, :3]
+    q0, q1 = p0[:, 0, 3:], p1[:, 0, 3:]
+    q1 = np.where(np.sum(q0 * q1, axis=-1, keepdims=True) < 0, -q1, q1)  # same hemisphere: nlerp
+    q = (1 - w)[:, None] * q0 + w[:, None] * q1
+    q /= np.linalg.norm(q, axis=-1, keepdims=True)
+    return dirs, palm, q, ok
+
+
+def _refine(shifts: np.ndarray, cost: np.ndarray) -> float:
+    """The minimising shift, refined by a parabola through the best grid point and its neighbours."""
+    k = int(np.nanargmin(cost))
+    if 0 < k < len(cost) - 1 and np.all(np.isfinite(cost[k - 1:k + 2])):
+        c0, c1, c2 = cost[k - 1:k + 2]
+        den = c0 - 2 * c1 + c2
+        if den > 0:
+            return float(shifts[k] + 0.5 * (c0 - c2) / den * (shifts[1] - shifts[0]))
+    return float(shifts[k])
+
+
+def _stats(x: np.ndarray, scale: float) -> dict:
+    if x.size == 0:
+        return {"median": float("nan"), "p95": float("nan"), "max": float("nan")}
+    return {"median": scale * float(np.median(x)), "p95": scale * float(np.percentile(x, 95)),
+            "max": scale * float(np.max(x))}
+
+
+def layer_lag(ref: Series, out: Series, shift_range_ms=SHIFT_RANGE_MS) -> dict:
+    """Lag and error of one layer `out` against the tracked bones `ref` (module docstring).
+
+    Returns lag_phalanx_ms, lag_palm_ms, phalanx_deg / palm_mm / palm_deg (median, p95, max at zero
+    shift), phalanx_deg_p95_at_lag, and samples (the output samples compared at zero shift)."""
+    shifts = np.arange(shift_range_ms[0], shift_range_ms[1] + 0.5, 1.0)
+    out_dirs = quat_rotate_x(out.poses[:, 1:, 3:])
+    out_palm = out.poses[:, 0, :3]
+    # only output samples comparable at every shift: the cost curves then compare like with like
+    common = np.ones(out.t.size, dtype=bool)
+    for s in (shifts[0], shifts[-1], 0.0):
+        common &= _interp(ref, out.t - 1e-3 * s)[3]
+    cost_dir, cost_palm = np.full(shifts.size, np.nan), np.full(shifts.size, np.nan)
+    if common.sum() >= 3:
+        t = out.t[common]
+        for k, s in enumerate(shifts):
+            dirs, palm, _, ok = _interp(ref, t - 1e-3 * s)
+            if ok.sum() < 0.9 * t.size:
+                continue
+            cost_dir[k] = np.mean(_angle(out_dirs[common][ok], dirs[ok]) ** 2)
+            cost_palm[k] = np.mean(np.sum((out_palm[common][ok] - palm[ok]) ** 2, axis=-1))
+    res = {"samples": int(common.sum())}
+    if not np.any(np.isfinite(cost_dir)):
+        return {**res, "lag_phalanx_ms": float("nan"), "lag_palm_ms": float("nan")}
+    res["lag_phalanx_ms"] = _refine(shifts, cost_dir)
+    res["lag_palm_ms"] = _refine(shifts, cost_palm)
+    dirs, palm, q, ok = _interp(ref, out.t)
+    ang = np.degrees(_angle(out_dirs[ok], dirs[ok]))
+    res["phalanx_deg"] = _stats(ang.reshape(-1), 1.0)
+    res["palm_mm"] = _stats(np.linalg.norm(out_palm[ok] - palm[ok], axis=-1), 1e3)
+    res["palm_deg"] = _stats(quat_angle(out.poses[ok, 0, 3:], q[ok]), np.degrees(1.0))
+    dirs, _, _, ok = _interp(ref, out.t - 1e-3 * res["lag_phalanx_ms"])
+    res["phalanx_deg_p95_at_lag"] = _stats(np.degrees(_angle(out_dirs[ok], dirs[ok])).reshape(-1), 1.0)["p95"]
+    return res
+
+
+def tracked_bones(joints: np.ndarray, t: np.ndarray, hand: str = "right") -> Series:
+    """The adapter's bone poses of tracker frames (n, 26, 3+) at t (n,); rejected frames left out."""
+    from softhand_tracking.adapter import AdapterConfig, TrackerAdapter
+
+    adapter = TrackerAdapter(AdapterConfig(hand=hand))
+    keep, poses = [], []
+    for i, j in enumerate(joints):
+        p = adapter.convert(np.asarray(j)[:, :3])
+        if p is not None:
+            keep.append(i)
+            poses.append(p)
+    return Series(np.asarray(t, float)[keep], np.asarray(poses).reshape(-1, 16, 7))
+
+
+def _pose_rows(msg) -> np.ndarray:
+    return np.array([(p.position.x, p.position.y, p.position.z, p.orientation.x, p.orientation.y,
+                      p.orientation.z, p.orientation.w) for p in msg.poses])
+
+
+def read_run(path):
+    """{topic: (header stamps [s], receive times [s], poses (n, k, 7))} of the tracker and layer
+    topics, and tracking_node's last frame counts, from a recording (or a run dir with bag/)."""
+    from rosbags.rosbag2 import Reader
+    from rosbags.typesys import Stores, get_typestore
+
+    path = Path(path)
+    if (path / "bag" / "metadata.yaml").is_file():
+        path = path / "bag"
+    store = get_typestore(Stores.ROS2_JAZZY)
+    rows = {t: ([], [], []) for t in (TRACKER, *LAYERS.values())}
+    counts = {}
+    with Reader(path) as reader:
+        conns = [c for c in reader.connections if c.topic in rows or c.topic == "/diagnostics"]
+        for conn, t_ns, raw in reader.messages(connections=conns):
+            msg = store.deserialize_cdr(raw, conn.msgtype)
+            if conn.topic == "/diagnostics":
+                for status in msg.status:
+                    if status.name == "tracking_node":
+                        values = {kv.key: kv.value for kv in status.values}
+                        for key in ("frames_received", "frames_accepted", "frames_rejected"):
+                            if key in values:
+                                counts[key.removeprefix("frames_")] = int(float(values[key]))
+                continue
+            stamps, recv, poses = rows[conn.topic]
+            stamps.append(msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec)
+            recv.append(t_ns * 1e-9)
+            poses.append(_pose_rows(msg))
+    out = {}
+    for topic, (stamps, recv, poses) in rows.items():
+        if poses and len({p.shape for p in poses}) == 1:
+            out[topic] = (np.asarray(stamps), np.asarray(recv), np.asarray(poses))
+    return out, counts
+
+
+def _sorted(t, poses) -> Series:
+    order = np.argsort(t, kind="stable")
+    return Series(np.asarray(t)[order], np.asarray(poses)[order])
+
+
+def lag_report(path, hand: str = "right", time_base: str = "auto") -> dict:
+    """The report of a recording (module docstring): {time_base, frames, intermediate, sim, ...}.
+
+    time_base: "stamp" (header stamps), "receive" (recording times) or "auto" (stamps when the
+    tracker's and the outputs' are on one clock, else receive times)."""
+    data, counts = read_run(path)
+    if TRACKER not in data:
+        raise ValueError(f"{path}: no {TRACKER} in the recording")
+    tr_stamp, tr_recv, joints = data[TRACKER]
+    report = {"frames": {"recorded": int(len(tr_stamp)), **counts}}
+    if time_base == "auto":
+        outs = [data[t][0] for t in LAYERS.values() if t in data]
+        offset = np.median(np.concatenate(outs)) - np.median(tr_stamp) if outs else 0.0
+        time_base = "stamp" if abs(offset) < CLOCK_MISMATCH_S else "receive"
+    col = 0 if time_base == "stamp" else 1
+    report["time_base"] = time_base
+    ref = tracked_bones(joints, (tr_stamp, tr_recv)[col], hand)
+    ref = _sorted(ref.t, ref.poses)
+    report["frames"]["valid"] = int(ref.t.size)
+    for name, topic in LAYERS.items():
+        if topic in data:
+            s = data[topic]
+            report[name] = layer_lag(ref, _sorted(s[col], s[2]))
+            report[name]["messages"] = int(len(s[0]))
+    return report
+
+
+def format_report(r: dict, title: str = "") -> str:
+    lines = [f"lag report {title} (time base: {r['time_base']})".replace("  ", " "),
+             "  tracker frames: " + ", ".join(f"{k} {v}" for k, v in r["frames"].items())]
+    for name in LAYERS:
+        if name not in r:
+            continue
+        x = r[name]
+        if "phalanx_deg" not in x:
+            lines.append(f"  {name}: not enough overlapping samples")
+            continue
+        pd, pm, pa = x["phalanx_deg"], x["palm_mm"], x["palm_deg"]
+        lines.append(f"  {name:12s} lag: phalanx {x['lag_phalanx_ms']:6.1f} ms, palm {x['lag_palm_ms']:6.1f} ms | "
+                     f"phalanx {pd['median']:.1f}/{pd['p95']:.1f}/{pd['max']:.1f} deg (median/p95/max; p95 at lag "
+                     f"{x['phalanx_deg_p95_at_lag']:.1f}), palm {pm['median']:.1f}/{pm['p95']:.1f}/{pm['max']:.1f} mm, "
+                     f"{pa['median']:.1f}/{pa['p95']:.1f}/{pa['max']:.1f} deg")
+    return "\n".join(lines)
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(prog="softhand lag", description="Lag and error of the intermediate and simulated "
+                                 "hand against the tracked hand in a recording (a demo run directory or a bag).")
+    ap.add_argument("run", help="run directory (with bag/) or rosbag2 recording")
+    ap.add_argument("--hand", default="right", choices=("right", "left"))
+    ap.add_argument("--time-base", default="auto", choices=("auto", "stamp", "receive"),
+                    help="pair messages by header stamps or receive times (auto: stamps when on one clock)")
+    ap.add_argument("--json", help="also write the report here")
+    args = ap.parse_args(argv)
+    try:
+        r = lag_report(args.run, args.hand, args.time_base)
+    except (ValueError, FileNotFoundError) as exc:
+        print(f"softhand lag: error: {exc}", file=sys.stderr)
+        return 1
+    print(format_report(r, str(args.run)))
+    if args.json:
+        Path(args.json).write_text(json.dumps(r, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
