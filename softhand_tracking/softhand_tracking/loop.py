@@ -248,6 +248,22 @@ class IntermediateBones:
         self.sim_gain = 1.0            # [0, 1] scale of the feedback stiffnesses (contact gating)
         self.last_energy = 0.0
 
+    def set_coupling(self, **values):
+        """Change Eq. 14 stiffnesses or the damping ratio while running (tracked_kx, tracked_ktheta,
+        sim_kx, sim_ktheta [N/m, N m/rad], damping_ratio [-]); the next step uses them."""
+        for name, value in values.items():
+            if name not in ("tracked_kx", "tracked_ktheta", "sim_kx", "sim_ktheta", "damping_ratio"):
+                raise ValueError(f"not a coupling parameter of the loop: {name}")
+            value = float(value)
+            if not np.isfinite(value) or value < 0 or (name == "tracked_ktheta" and value == 0):
+                raise ValueError(f"loop parameter {name} must be finite and {'> 0' if name == 'tracked_ktheta' else '>= 0'}, got {value!r}")
+            setattr(self.config, name, value)
+        c = self.config
+        self.tracked_kx[:] = c.tracked_kx
+        self.tracked_ktheta[:] = c.tracked_ktheta
+        self.sim_kx[0] = c.sim_kx                      # palm only (Sect. 3.6)
+        self.sim_ktheta[:] = c.sim_ktheta
+
     def reset(self, poses):
         self.pose[:] = poses
         self.tracked[:] = poses

@@ -50,7 +50,10 @@ TRACKER_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=200,
 class TrackingNode(Node):
     def __init__(self):
         super().__init__(NODE_NAME)
-        p = declare_node_params(self, NODE_NAME)
+        # the couplings of Eq. 14 and the damping change while running (ros2 param set); other keys at start
+        live = {key: (lambda value, key=key: self.loop.bones.set_coupling(**{key: value}))
+                for key in ("tracked_kx", "tracked_ktheta", "sim_kx", "sim_ktheta", "damping_ratio")}
+        p = declare_node_params(self, NODE_NAME, live=live)
         if len(p["tracker_to_world"]) != 7:
             raise ValueError(f"{NODE_NAME}: parameter 'tracker_to_world' must be 7 numbers "
                              f"[px py pz qx qy qz qw], got {p['tracker_to_world']!r}")

@@ -244,3 +244,23 @@ def test_extrapolation_removes_the_frame_hold_lag():
             err.append(np.linalg.norm(out[0, :3] - bone_frames(ref[:, :3])[0, :3]))
         errs[extrapolate] = np.median(err[150:])
     assert errs[True] < 0.001 and errs[False] > 0.002, errs
+
+
+def test_coupling_changed_while_running_is_used_by_the_next_step():
+    """set_coupling (what tracking_node's live parameters call) changes the stiffness the next step uses:
+    a stiffer tracked coupling pulls a displaced bone further in one step; bad values are refused."""
+    def one_step(kx):
+        bones = IntermediateBones(LoopConfig(), default_bone_inertia())
+        start = _rest_bones()
+        bones.reset(start)
+        bones.set_coupling(tracked_kx=kx)
+        bones.set_tracked(_moved(start, bones.com_local, np.array([0.01, 0, 0]), np.zeros(3)))
+        bones.set_sim(None)
+        return bones.step()[0, 0] - start[0, 0]
+    soft, stiff = one_step(50.0), one_step(5000.0)
+    assert 0 < soft < stiff < 0.01
+    bones = IntermediateBones(LoopConfig(), default_bone_inertia())
+    with pytest.raises(ValueError, match="tracked_ktheta"):
+        bones.set_coupling(tracked_ktheta=0.0)
+    with pytest.raises(ValueError, match="not a coupling parameter"):
+        bones.set_coupling(rate=10.0)
