@@ -20,7 +20,7 @@ from trajectory_msgs.msg import MultiDOFJointTrajectory
 from visualization_msgs.msg import Marker, MarkerArray
 
 from softhand_sim.ros import msgs as rm
-from softhand_sim.ros.markers import CONTACT_MARKERS_TOPIC, contact_force_markers
+from softhand_sim.ros.markers import CONTACT_MARKERS_TOPIC, ContactMarkerSerializer
 from softhand_sim.params import ParamError
 from softhand_sim.scene import SceneError
 from softhand_sim.ros.common import LATCHED_QOS, LATEST_QOS, PUB_QOS, DiagnosticsPublisher, RejectionLog, RateMeter, fail, run_node, split_cli
@@ -89,6 +89,7 @@ class SimNode(Node):
         self.marker_period = 1.0 / self.params["skin_marker_rate"]
         self.marker_serializer = rm.TriangleMarkerSerializer()  # numpy-built CDR: 10x faster than rclpy's
         self.last_marker = -np.inf
+        self.contact_serializer = ContactMarkerSerializer()  # force arrows, numpy-built CDR like the skin's
 
     # -------------------------------------------------------------------- inputs
     def reject(self, reason, detail):
@@ -138,7 +139,7 @@ class SimNode(Node):
             self.last_marker = t
             verts, tris = self.runtime.display_mesh(out)
             self.pub_marker.publish(self.marker_serializer.serialize(verts, tris, stamp))
-            self.pub_contact_markers.publish(contact_force_markers(c["points"], c["forces"], c["slip"], stamp))
+            self.pub_contact_markers.publish(self.contact_serializer.serialize(c["points"], c["forces"], c["slip"], stamp))
         if out.warning:
             self.last_guard_warning = out.warning
             self.get_logger().warning(out.warning, throttle_duration_sec=2.0)
