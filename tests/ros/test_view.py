@@ -115,6 +115,8 @@ def test_view_serves_hand_scene_and_contacts_to_a_websocket_client(ros_env):
     scene = got["/world/markers"].markers
     assert [(m.ns, m.type) for m in scene] == [("world", Marker.CUBE), (rm.GROUND_NS, Marker.CUBE)]
     contacts = got[mk.CONTACT_MARKERS_TOPIC].markers
-    arrow = [m for m in contacts if m.ns == mk.ARROW_NS][0]
-    assert arrow.type == Marker.ARROW and arrow.points[1].z == pytest.approx(0.8 + mk.FORCE_SCALE * 1.5)
+    slipping = contacts[1]  # the one contact slips: its arrow is in the slip list
+    assert (slipping.ns, slipping.id, slipping.type) == (mk.ARROW_NS, 1, Marker.TRIANGLE_LIST)
+    tip_z = max(p.z for p in slipping.points)
+    assert len(slipping.points) == 3 * mk.TRIANGLES_PER_ARROW and tip_z == pytest.approx(0.8 + mk.FORCE_SCALE * 1.5)
     assert float([m for m in contacts if m.ns == mk.TOTAL_NS][0].text) == pytest.approx(1.5)
