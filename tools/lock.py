@@ -14,8 +14,8 @@ HEADER = """\
 # Regenerate from a working venv: .venv/bin/python tools/lock.py > requirements.lock
 # Direct dependencies: ros-jazzy-rclpy[fastrtps] ros-jazzy-common-interfaces numpy scipy numba
 # pybullet mcap mcap-ros2-support rosbags pyyaml scikit-image trimesh manifold3d fast-simplification
-# matplotlib pytest pytest-timeout colcon-core colcon-ros ros-jazzy-ament-package setuptools wheel;
-# the rest are their dependencies.
+# matplotlib pytest pytest-timeout colcon-core colcon-ros ros-jazzy-ament-package setuptools wheel
+# foxglove-sdk (softhand view) websockets (its test's client); the rest are their dependencies.
 """
 
 

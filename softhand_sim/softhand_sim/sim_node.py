@@ -2,7 +2,8 @@
 
 Subscribes /hand/intermediate_bones (bone targets, Sect. 3.6) and /world/object_states (engine
 copies, Sect. 3.7). Publishes /hand/bones, /hand/object_states, /hand/skin_vertices,
-/hand/skin_mesh (once, transient local), /hand/skin_marker, /hand/contacts, /diagnostics.
+/hand/skin_mesh (once, transient local), /hand/skin_marker, /hand/contacts, /hand/contact_markers
+(force arrows, at the skin marker rate), /diagnostics.
 All physics lives in softhand_sim.runtime; this file converts messages and owns timers.
 """
 from __future__ import annotations
@@ -16,9 +17,10 @@ from rclpy.node import Node
 from sensor_msgs.msg import PointCloud2
 from shape_msgs.msg import Mesh
 from trajectory_msgs.msg import MultiDOFJointTrajectory
-from visualization_msgs.msg import Marker
+from visualization_msgs.msg import Marker, MarkerArray
 
 from softhand_sim.ros import msgs as rm
+from softhand_sim.ros.markers import CONTACT_MARKERS_TOPIC, ContactMarkerSerializer
 from softhand_sim.params import ParamError
 from softhand_sim.scene import SceneError
 from softhand_sim.ros.common import LATCHED_QOS, LATEST_QOS, PUB_QOS, DiagnosticsPublisher, RejectionLog, RateMeter, fail, run_node, split_cli
@@ -77,6 +79,7 @@ class SimNode(Node):
         self.pub_mesh = self.create_publisher(Mesh, "/hand/skin_mesh", LATCHED_QOS)
         self.pub_marker = self.create_publisher(Marker, "/hand/skin_marker", PUB_QOS)
         self.pub_contacts = self.create_publisher(PointCloud2, "/hand/contacts", PUB_QOS)
+        self.pub_contact_markers = self.create_publisher(MarkerArray, CONTACT_MARKERS_TOPIC, PUB_QOS)  # viewers
         self.create_subscription(PoseArray, "/hand/intermediate_bones", self.on_bones, LATEST_QOS)
         self.create_subscription(MultiDOFJointTrajectory, "/world/object_states", self.on_objects, LATEST_QOS)
         verts, tris = self.runtime.skin_rest_mesh()
@@ -86,6 +89,7 @@ class SimNode(Node):
         self.marker_period = 1.0 / self.params["skin_marker_rate"]
         self.marker_serializer = rm.TriangleMarkerSerializer()  # numpy-built CDR: 10x faster than rclpy's
         self.last_marker = -np.inf
+        self.contact_serializer = ContactMarkerSerializer()  # force arrows, numpy-built CDR like the skin's
 
     # -------------------------------------------------------------------- inputs
     def reject(self, reason, detail):
@@ -135,6 +139,7 @@ class SimNode(Node):
             self.last_marker = t
             verts, tris = self.runtime.display_mesh(out)
             self.pub_marker.publish(self.marker_serializer.serialize(verts, tris, stamp))
+            self.pub_contact_markers.publish(self.contact_serializer.serialize(c["points"], c["forces"], c["slip"], stamp))
         if out.warning:
             self.last_guard_warning = out.warning
             self.get_logger().warning(out.warning, throttle_duration_sec=2.0)

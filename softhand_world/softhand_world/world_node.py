@@ -122,7 +122,8 @@ class WorldNode(Node):
         s = self.world.states()
         poses = np.array([self.world.states().pose[self.world.object_index(o.name)] if not o.static else o.pose
                           for o in self.scene.objects]).reshape(-1, 7)
-        self.pub_markers.publish(rm.scene_markers(self.scene.objects, rm.stamp_from_seconds(s.stamp), poses=poses))
+        self.pub_markers.publish(rm.scene_markers(self.scene.objects, rm.stamp_from_seconds(s.stamp), poses=poses,
+                                                  ground_height=self.scene.ground_height))  # table and ground drawn
 
     def collect_diagnostics(self):
         status = self.world.copy_status()

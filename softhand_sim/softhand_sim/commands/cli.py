@@ -20,6 +20,7 @@ SUBCOMMANDS = {
                                                     "writes a measures file"),
     "fidelity": ("softhand_sim.commands.fidelity", "palm, knuckle, fingertip and phalanx-direction error of the "
                                                   "simulated vs the tracked hand (recording or --offline)"),
+    "view": ("softhand_sim.commands.view", "serve the live topics to the Foxglove app (WebSocket, 127.0.0.1:8765)"),
     "offline": ("softhand_sim.commands.offline", "run the whole pipeline over a bag without ROS, deterministically; "
                                                  "prints the ball's lift, hold and fall"),
     "lag": ("softhand_sim.commands.lag", "lag and error of the intermediate and simulated hand against the "

@@ -98,8 +98,10 @@ class ProcessSet:
         return "\n".join(path.read_text(errors="replace").splitlines()[-lines:]) if path.exists() else ""
 
 
-def run_demo(bag, out_dir, rate=1.0, params_file=None, preview=True, startup_timeout=600.0, quiet=False):
-    """Run the node set over `bag`; returns the summary dict (also written to out_dir/summary.json)."""
+def run_demo(bag, out_dir, rate=1.0, params_file=None, preview=True, startup_timeout=600.0, quiet=False, view=False):
+    """Run the node set over `bag`; returns the summary dict (also written to out_dir/summary.json).
+
+    view: also run `softhand view` in the demo's domain (the live topics for the Foxglove app)."""
     say = (lambda *a: None) if quiet else (lambda *a: print(*a, flush=True))
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -111,6 +113,9 @@ def run_demo(bag, out_dir, rate=1.0, params_file=None, preview=True, startup_tim
     ros = ["--ros-args"] + (["--params-file", str(params_file)] if params_file else [])
     t0 = time.monotonic()
     try:
+        if view:  # first, so the Foxglove app can connect while the nodes start
+            procs.start("view", [console_script("softhand"), "view"])
+            say("  live view: in the Foxglove app, Open connection -> Foxglove WebSocket -> ws://localhost:8765")
         for _, executable in SIM_NODES:
             name = executable.removesuffix("_node")
             procs.start(name, [console_script(f"softhand-{name}"), *ros])
@@ -179,12 +184,14 @@ def main(argv=None):
     parser.add_argument("--rate", type=float, default=1.0, help="playback speed factor (default 1)")
     parser.add_argument("--params-file", default=None, help="ROS 2 params file for the nodes")
     parser.add_argument("--no-preview", action="store_true", help="skip rendering the preview")
+    parser.add_argument("--view", action="store_true",
+                        help="serve the live topics to the Foxglove app on ws://127.0.0.1:8765 (softhand view)")
     args = parser.parse_args(argv)
     if args.rate <= 0:
         parser.error(f"--rate must be > 0, got {args.rate}")
     bag = resolve_bag(args.bag)
     out = Path(args.out) if args.out else REPO_ROOT / "runs" / datetime.now().strftime("%Y%m%d-%H%M%S")
-    run_demo(bag, out, rate=args.rate, params_file=args.params_file, preview=not args.no_preview)
+    run_demo(bag, out, rate=args.rate, params_file=args.params_file, preview=not args.no_preview, view=args.view)
     return 0
 
 

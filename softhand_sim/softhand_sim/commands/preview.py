@@ -3,7 +3,8 @@
 Reads /hand/skin_marker (the skin as a triangle list) and /world/object_states (engine-side
 objects) from the rosbag2 directory, the static objects from the scene file, and draws them with
 handmodel.render (matplotlib, painter's algorithm; no ROS, no GPU). Writes preview.png (a strip
-of key frames, side view) and preview.gif (the run, downsampled, three-quarter view).
+of key frames) and preview.gif (the run, downsampled), both from one fixed camera with the table
+and the ground in view.
 """
 from __future__ import annotations
 
@@ -13,10 +14,19 @@ import numpy as np
 
 from softhand_sim.scene import load_scene
 
-STRIP_VIEW = "side"
-GIF_VIEW = (-65.0, 25.0)  # (azimuth, elevation) [deg]
+# One fixed camera for every panel of preview.png and every frame of preview.gif: an elevated
+# three-quarter view from the front (-y) of the table, framed once for the whole run, so the hand
+# and the objects move in the picture and the table and the ground stay put.
+CAMERA_VIEW = (-60.0, 40.0)  # (azimuth, elevation) [deg]
 TABLE_RGB = (0.78, 0.74, 0.68)
-TABLE_CELL = 0.02  # [m] the table top is drawn as small quads so depth sorting stays right
+GROUND_RGB = (0.62, 0.66, 0.6)
+BACKDROP_CELL = 0.03  # [m] static objects are drawn as small triangles so depth sorting stays right
+GROUND_CELL = 0.05    # [m] grid of the ground patch
+GROUND_HALF = 1.0     # [m] the ground is drawn as a square of this half edge around the hand
+GROUND_REACH = 0.06   # [m] of ground shown beyond the front edge of the table
+FRAME_MARGIN = 0.02   # [m] around the hand, the objects and the ground patch in view
+PANEL_WIDTH_IN = 2.8  # [in] width of one panel of preview.png; the height follows the frame
+GIF_WIDTH_IN = 3.6    # [in] width of preview.gif (80 dpi)
 
 
 def read_frames(bag_dir, max_frames=60):
@@ -51,34 +61,98 @@ def _pose_at(track, t):
     return track[int(np.clip(np.searchsorted(times, t), 0, len(track) - 1))][1]
 
 
-def table_top_mesh(scene, center, half_width):
-    """The top faces of static boxes near `center`, as a grid of small quads (vertices, faces)."""
-    verts, faces = [], []
+def backdrop_meshes(scene, center):
+    """The static objects and a ground patch around `center` as finely cut triangle meshes.
+
+    [(vertices, faces, rgb, alpha)] for draw_scene's extra_meshes. Painter's algorithm sorts whole
+    triangles, so the big faces of a table or the ground are cut into BACKDROP_CELL pieces.
+    """
+    import trimesh
+
+    from softhand_sim.handmodel.render import object_mesh
+
+    out = []
     for obj in scene.static_objects:
-        if obj.shape != "box":
+        if obj.shape == "mesh":
+            continue  # a static mesh is not drawn (object_mesh knows primitives only)
+        v, f = object_mesh(obj.shape, obj.dims, obj.pose)
+        v, f = trimesh.remesh.subdivide_to_size(v, f, max_edge=BACKDROP_CELL)
+        out.append((v, f, TABLE_RGB, 1.0))
+    # the ground grid: lines every GROUND_CELL and on the static boxes' edges, cells under them left
+    # out, so no ground triangle straddles a table edge (it would be sorted wrongly against the table)
+    edges = [[], []]
+    for obj in scene.static_objects:
+        if obj.shape == "box":
+            for axis in (0, 1):
+                edges[axis] += [obj.pose[axis] - obj.dims["size"][axis] / 2, obj.pose[axis] + obj.dims["size"][axis] / 2]
+    xs, ys = (np.unique(np.concatenate([np.arange(center[a] - GROUND_HALF, center[a] + GROUND_HALF + 1e-9, GROUND_CELL),
+                                        np.clip(edges[a], center[a] - GROUND_HALF, center[a] + GROUND_HALF)]))
+              for a in (0, 1))
+    gx, gy = np.meshgrid(xs, ys, indexing="ij")
+    verts = np.column_stack([gx.ravel(), gy.ravel(), np.full(gx.size, scene.ground_height)])
+    idx = np.arange(gx.size).reshape(gx.shape)
+    a, b, c, d = idx[:-1, :-1].ravel(), idx[1:, :-1].ravel(), idx[1:, 1:].ravel(), idx[:-1, 1:].ravel()
+    mid = 0.25 * (verts[a] + verts[b] + verts[c] + verts[d])[:, :2]
+    free = ~_inside_static_footprint(scene, mid)
+    a, b, c, d = a[free], b[free], c[free], d[free]
+    out.append((verts, np.concatenate([np.column_stack([a, b, c]), np.column_stack([a, c, d])]), GROUND_RGB, 1.0))
+    return out
+
+
+def _inside_static_footprint(scene, xy):
+    """True where points xy (n, 2) lie over a static box (axis-aligned footprint)."""
+    inside = np.zeros(len(xy), bool)
+    for obj in scene.static_objects:
+        if obj.shape == "box":
+            half = 0.5 * np.asarray(obj.dims["size"][:2])
+            inside |= np.all(np.abs(xy - obj.pose[:2]) <= half, axis=1)
+    return inside
+
+
+def camera_frame(scene, focus_points, view=CAMERA_VIEW):
+    """The one camera frame ((x0, x1), (y0, y1)) of the whole preview.
+
+    It shows every focus point (the hand and the objects over the whole run) and, below them, the
+    ground just in front of the static objects (the table): the focus box's corners are carried
+    toward the camera until they leave every static footprint, then GROUND_REACH further.
+    """
+    from softhand_sim.handmodel.render import view_limits, view_matrix
+
+    pts = np.asarray(focus_points, dtype=np.float64).reshape(-1, 3)
+    lo, hi = pts.min(axis=0), pts.max(axis=0)
+    corners = np.array([[x, y] for x in (lo[0], hi[0]) for y in (lo[1], hi[1])])
+    toward = view_matrix(view)[2, :2]
+    toward = toward / max(np.linalg.norm(toward), 1e-9)
+    ground = corners.copy()
+    for _ in range(200):  # 2 m in 1 cm steps at most
+        inside = _inside_static_footprint(scene, ground)
+        if not inside.any():
+            break
+        ground[inside] += 0.01 * toward
+    ground += GROUND_REACH * toward
+    ground3 = np.column_stack([ground, np.full(len(ground), scene.ground_height)])
+    return view_limits(np.vstack([pts, ground3]), view, margin=FRAME_MARGIN)
+
+
+def _object_points(dynamic, objects):
+    """Points that bound each dynamic object over its track (centre +- its size in every axis)."""
+    out = []
+    for name, track in objects.items():
+        if name not in dynamic:
             continue
-        sx, sy, sz = obj.dims["size"]
-        top = obj.pose[2] + sz / 2
-        x0, x1 = max(obj.pose[0] - sx / 2, center[0] - half_width), min(obj.pose[0] + sx / 2, center[0] + half_width)
-        y0, y1 = max(obj.pose[1] - sy / 2, center[1] - half_width), min(obj.pose[1] + sy / 2, center[1] + half_width)
-        if x1 <= x0 or y1 <= y0:
-            continue
-        xs = np.linspace(x0, x1, max(2, int((x1 - x0) / TABLE_CELL) + 1))
-        ys = np.linspace(y0, y1, max(2, int((y1 - y0) / TABLE_CELL) + 1))
-        gx, gy = np.meshgrid(xs, ys, indexing="ij")
-        base = sum(len(v) for v in verts)
-        verts.append(np.column_stack([gx.ravel(), gy.ravel(), np.full(gx.size, top)]))
-        nx, ny = len(xs), len(ys)
-        idx = np.arange(nx * ny).reshape(nx, ny) + base
-        a, b, c, d = idx[:-1, :-1].ravel(), idx[1:, :-1].ravel(), idx[1:, 1:].ravel(), idx[:-1, 1:].ravel()
-        faces.append(np.concatenate([np.column_stack([a, b, c]), np.column_stack([a, c, d])]))
-    if not verts:
-        return None
-    return np.concatenate(verts), np.concatenate(faces)
+        d = dynamic[name].dims
+        r = float(d.get("radius", 0.0)) + 0.5 * float(d.get("length", 0.0)) + 0.5 * float(np.linalg.norm(d.get("size", 0.0)))
+        centres = np.array([pose[:3] for _, pose in track])
+        out.append(np.vstack([centres + r * e for e in np.vstack([np.eye(3), -np.eye(3)])]))
+    return np.vstack(out) if out else np.zeros((0, 3))
 
 
 def render_preview(bag_dir, out_dir, scene_file=None, strip_frames=6, gif_frames=40):
-    """Write preview.png (key-frame strip) and preview.gif; returns their paths ([] if no skin)."""
+    """Write preview.png (key-frame strip) and preview.gif; returns their paths ([] if no skin).
+
+    Every panel and every GIF frame is drawn from the same camera (CAMERA_VIEW, framed once by
+    `camera_frame`), with the static objects and the ground.
+    """
     from PIL import Image
 
     from softhand_sim.handmodel.render import draw_scene, plt
@@ -91,21 +165,24 @@ def render_preview(bag_dir, out_dir, scene_file=None, strip_frames=6, gif_frames
     dynamic = {o.name: o for o in scene.dynamic_objects}
     all_pts = np.concatenate([s for _, s, in skins])
     center = 0.5 * (all_pts.min(axis=0) + all_pts.max(axis=0))
-    table = table_top_mesh(scene, center, 0.2)
-    extra = [(table[0], table[1], TABLE_RGB, 0.999)] if table is not None else []
+    backdrop = backdrop_meshes(scene, center)
+    limits = camera_frame(scene, np.vstack([all_pts, _object_points(dynamic, objects)]))
+    aspect = (limits[1][1] - limits[1][0]) / (limits[0][1] - limits[0][0])  # height / width
     t0 = skins[0][0]
 
-    def draw(ax, k, view):
+    def draw(ax, k):
         t, pts = skins[k]
         objs = [(dynamic[n].shape, dynamic[n].dims, _pose_at(track, t)) for n, track in objects.items()
                 if n in dynamic]
-        draw_scene(ax, pts, np.arange(len(pts)).reshape(-1, 3), objs, view=view, extra_meshes=extra)
+        draw_scene(ax, pts, np.arange(len(pts)).reshape(-1, 3), objs, view=CAMERA_VIEW, extra_meshes=backdrop,
+                   limits=limits)
         ax.set_title(f"t = {t - t0:.1f} s", fontsize=9)
 
     keys = np.linspace(0, len(skins) - 1, min(strip_frames, len(skins))).round().astype(int)
-    fig, axes = plt.subplots(1, len(keys), figsize=(3.0 * len(keys), 3.0), dpi=90, squeeze=False)
+    fig, axes = plt.subplots(1, len(keys), figsize=(PANEL_WIDTH_IN * len(keys), PANEL_WIDTH_IN * aspect + 0.3),
+                             dpi=90, squeeze=False)
     for ax, k in zip(axes[0], keys):
-        draw(ax, k, STRIP_VIEW)
+        draw(ax, k)
     fig.tight_layout()
     png = out_dir / "preview.png"
     fig.savefig(png)
@@ -113,8 +190,9 @@ def render_preview(bag_dir, out_dir, scene_file=None, strip_frames=6, gif_frames
 
     frames = []
     for k in range(len(skins)):
-        fig, ax = plt.subplots(figsize=(3.2, 3.2), dpi=80)
-        draw(ax, k, GIF_VIEW)
+        fig, ax = plt.subplots(figsize=(GIF_WIDTH_IN, GIF_WIDTH_IN * aspect + 0.3), dpi=80)
+        draw(ax, k)
+        fig.tight_layout(pad=0.2)
         fig.canvas.draw()
         frames.append(Image.fromarray(np.asarray(fig.canvas.buffer_rgba())[:, :, :3].copy()))
         plt.close(fig)

@@ -83,12 +83,14 @@ def _shade(tri_world, view_rot, rgb):
 
 
 def draw_scene(ax, skin_vertices, skin_triangles, objects=(), view="dorsal", skin_rgb=SKIN_RGB,
-               extra_meshes=(), margin=0.01):
+               extra_meshes=(), margin=0.01, limits=None):
     """Draw a posed skin and scene objects onto a 2D matplotlib axes.
 
     objects: iterable of (shape, dims dict, pose (7,)); extra_meshes: (vertices, faces, rgb,
     alpha) drawn in the same depth order (e.g. tets or bone capsules). Back faces are culled
-    for closed meshes, the rest is painted back to front.
+    for closed meshes, the rest is painted back to front. limits: a fixed camera frame
+    ((x0, x1), (y0, y1)) in view coordinates [m] (see `view_limits`); by default the frame fits
+    what is drawn, so a sequence drawn with `limits` keeps one camera while things move.
     """
     rot = view_matrix(view)
     meshes = [(np.asarray(skin_vertices, float), np.asarray(skin_triangles), skin_rgb, 1.0)]
@@ -110,12 +112,21 @@ def draw_scene(ax, skin_vertices, skin_triangles, objects=(), view="dorsal", ski
     order = np.argsort(depth, kind="stable")
     ax.add_collection(PolyCollection(polys[order], facecolors=colors[order], edgecolors="none",
                                      antialiased=False))
-    lo, hi = polys.reshape(-1, 2).min(0) - margin, polys.reshape(-1, 2).max(0) + margin
-    ax.set_xlim(lo[0], hi[0])
-    ax.set_ylim(lo[1], hi[1])
+    if limits is None:
+        lo, hi = polys.reshape(-1, 2).min(0) - margin, polys.reshape(-1, 2).max(0) + margin
+        limits = ((lo[0], hi[0]), (lo[1], hi[1]))
+    ax.set_xlim(*limits[0])
+    ax.set_ylim(*limits[1])
     ax.set_aspect("equal")
     ax.axis("off")
     return ax
+
+
+def view_limits(points, view, margin=0.01):
+    """The camera frame ((x0, x1), (y0, y1)) [m] of `view` that shows every world point (n, 3)."""
+    cam = np.asarray(points, dtype=np.float64).reshape(-1, 3) @ view_matrix(view)[:2].T
+    lo, hi = cam.min(axis=0) - margin, cam.max(axis=0) + margin
+    return (float(lo[0]), float(hi[0])), (float(lo[1]), float(hi[1]))
 
 
 def scene_to_rgb(skin_vertices, skin_triangles, objects=(), view="dorsal", size_px=(480, 360), dpi=100):

@@ -63,6 +63,7 @@ TOPIC_TYPES = {
     "/hand/skin_mesh": "shape_msgs/msg/Mesh",
     "/hand/skin_marker": "visualization_msgs/msg/Marker",
     "/hand/contacts": "sensor_msgs/msg/PointCloud2",
+    "/hand/contact_markers": "visualization_msgs/msg/MarkerArray",
     "/world/markers": "visualization_msgs/msg/MarkerArray",
     "/diagnostics": "diagnostic_msgs/msg/DiagnosticArray",
 }

@@ -410,8 +410,14 @@ def _offset_pose(pose, local_z: float) -> np.ndarray:
     return out
 
 
+GROUND_NS = "ground"
+GROUND_SIZE = 4.0        # [m] edge of the square drawn for the ground plane (the plane is infinite)
+GROUND_THICKNESS = 0.002  # [m] the slab's top face is the plane
+
+
 def scene_markers(objects: Iterable, stamp, poses=None, ns: str = "world", frame_id: str = WORLD_FRAME,
-                  static_color=(0.6, 0.6, 0.6, 1.0), dynamic_color=(0.2, 0.5, 0.9, 1.0)) -> MarkerArray:
+                  static_color=(0.6, 0.6, 0.6, 1.0), dynamic_color=(0.2, 0.5, 0.9, 1.0),
+                  ground_height: float | None = None, ground_color=(0.45, 0.5, 0.45, 1.0)) -> MarkerArray:
     """MarkerArray of scene objects as primitives (/world/markers).
 
     objects: items with attributes name, shape ('sphere' | 'box' | 'cylinder' | 'capsule' | 'mesh'),
@@ -419,6 +425,8 @@ def scene_markers(objects: Iterable, stamp, poses=None, ns: str = "world", frame
     pose (7,) and static (bool) -- scene.SceneObject fits. poses: optional (n, 7) current poses
     overriding obj.pose. A capsule is three markers (cylinder + two end spheres); a mesh is a
     MESH_RESOURCE with a file:// URI. Marker ids are consecutive from 0 in object order.
+    ground_height [m]: when given, the ground plane z = ground_height is drawn as well, a thin
+    GROUND_SIZE square slab under the origin (namespace 'ground', id 0) whose top face is the plane.
     """
     objects = list(objects)
     cur = None if poses is None else _check_rows("poses", poses, 7)
@@ -465,6 +473,13 @@ def scene_markers(objects: Iterable, stamp, poses=None, ns: str = "world", frame
                 raise ValueError(f"object {obj.name!r}: unknown shape {shape!r}")
         except KeyError as exc:
             raise ValueError(f"object {obj.name!r} ({shape}) lacks dimension {exc.args[0]!r}") from None
+    if ground_height is not None:
+        g = Marker(header=header, ns=GROUND_NS, id=0, type=Marker.CUBE, action=Marker.ADD, text="ground")
+        _set_pose(g, (0.0, 0.0, float(ground_height) - 0.5 * GROUND_THICKNESS, 0.0, 0.0, 0.0, 1.0))
+        g.scale.x = g.scale.y = GROUND_SIZE
+        g.scale.z = GROUND_THICKNESS
+        g.color = _color(ground_color)
+        out.append(g)
     return MarkerArray(markers=out)
 
 
