@@ -46,7 +46,7 @@ $(STAMP): requirements.lock softhand_sim/setup.py softhand_tracking/setup.py sof
 # Cached: runs again only when the venv or the vendored sources change. Without a C/C++ compiler
 # or the Python headers it prints one warning and make goes on (the nodes then run without TF).
 $(TF2_STAMP): $(STAMP) tools/build_tf2_msgs.py $(TF2_SOURCES)
-	@echo "building tf2_msgs into $(VENV) (once; about half a minute)"
+	@echo "building tf2_msgs into $(VENV) (once: about 60 s of CPU time)"
 	@$(BIN)/python tools/build_tf2_msgs.py --venv $(VENV) --stamp $@ || true
 
 tf2_msgs: $(STAMP)
