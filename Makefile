@@ -10,12 +10,15 @@ PYTHON ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.softhand-installed
+# tf2_msgs (for /tf) built from ros_ws/vendor into the venv; the stamp says "built" or why not
+TF2_STAMP := $(VENV)/.tf2_msgs-built
+TF2_SOURCES := $(shell find ros_ws/vendor/tf2_msgs -type f 2>/dev/null)
 PIP_VERSION := 26.3
 export ROS_AUTOMATIC_DISCOVERY_RANGE := LOCALHOST
 export ROS_DOMAIN_ID ?= 61
 unexport ROS_LOCALHOST_ONLY
 
-.PHONY: venv demo test bench bags hand colcon clean help
+.PHONY: venv tf2_msgs demo test bench bags hand colcon clean help
 
 help:
 	@echo "make demo    replay the grasp bag through tracking, sim, world and record nodes -> runs/<stamp>/"
@@ -24,8 +27,9 @@ help:
 	@echo "make bags    regenerate the sample tracker bags in bags/"
 	@echo "make hand    build the hand model and render docs/img/hand.png"
 	@echo "make colcon  build ros_ws with colcon into ros_ws/install"
+	@echo "make tf2_msgs  (re)build tf2_msgs into .venv (after installing a C/C++ compiler)"
 
-venv: $(STAMP)
+venv: $(STAMP) $(TF2_STAMP)
 
 $(STAMP): requirements.lock softhand_sim/setup.py softhand_tracking/setup.py softhand_world/setup.py
 	@$(PYTHON) -c 'import sys; sys.exit(0 if sys.version_info[:2] == (3, 11) else 1)' || \
@@ -38,6 +42,16 @@ $(STAMP): requirements.lock softhand_sim/setup.py softhand_tracking/setup.py sof
 	$(BIN)/python -m pip install --quiet --disable-pip-version-check --no-deps --no-build-isolation \
 	  --config-settings editable_mode=compat -e ./softhand_sim -e ./softhand_tracking -e ./softhand_world
 	touch $@
+
+# Cached: runs again only when the venv or the vendored sources change. Without a C/C++ compiler
+# or the Python headers it prints one warning and make goes on (the nodes then run without TF).
+$(TF2_STAMP): $(STAMP) tools/build_tf2_msgs.py $(TF2_SOURCES)
+	@echo "building tf2_msgs into $(VENV) (once: about 60 s of CPU time)"
+	@$(BIN)/python tools/build_tf2_msgs.py --venv $(VENV) --stamp $@ || true
+
+tf2_msgs: $(STAMP)
+	rm -f $(TF2_STAMP)
+	$(MAKE) --no-print-directory $(TF2_STAMP)
 
 demo: venv
 	$(BIN)/softhand demo $(ARGS)

@@ -56,7 +56,8 @@ from softhand_sim.ros.bagio import (BagError, add_topic, flush_chunk, header_sta
 
 __all__ = ["RecordNode", "header_stamp_ns", "main"]  # header_stamp_ns: kept importable from here
 
-#: Default topic list: every softhand topic of docs/INTERFACE.md but the heavy /hand/skin_vertices.
+#: Default topic list: every softhand topic of docs/INTERFACE.md but the heavy /hand/skin_vertices
+#: (/tf and /tf_static included; skipped with one warning where tf2_msgs is not built).
 DEFAULT_TOPICS = [t for t in TOPIC_TYPES if t != "/hand/skin_vertices"]
 
 
@@ -168,7 +169,12 @@ class RecordNode(Node):
             self.get_logger().error(f"cannot record {topic}: type {msgtype} has no schema in the typestore")
             self.subs[topic] = None
             return
-        cls = message_class(msgtype)
+        try:
+            cls = message_class(msgtype)
+        except ValueError as exc:  # e.g. /tf without tf2_msgs built into the venv (ros/tf.py)
+            self.get_logger().warning(f"not recording {topic}: {exc}")
+            self.subs[topic] = None
+            return
         if cls.get_fields_and_field_types().get("header") == "std_msgs/Header":
             self.header_types.add(topic)
         self.msgtypes[topic] = msgtype

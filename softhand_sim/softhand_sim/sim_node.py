@@ -3,7 +3,8 @@
 Subscribes /hand/intermediate_bones (bone targets, Sect. 3.6) and /world/object_states (engine
 copies, Sect. 3.7). Publishes /hand/bones, /hand/object_states, /hand/skin_vertices,
 /hand/skin_mesh (once, transient local), /hand/skin_marker, /hand/contacts, /hand/contact_markers
-(force arrows, at the skin marker rate), /diagnostics.
+(force arrows, at the skin marker rate), /diagnostics, and /tf (bone frames) + /tf_static (ground,
+static objects) when tf2_msgs is built (ros/tf.py).
 All physics lives in softhand_sim.runtime; this file converts messages and owns timers.
 """
 from __future__ import annotations
@@ -25,6 +26,7 @@ from softhand_sim.params import ParamError
 from softhand_sim.scene import SceneError
 from softhand_sim.ros.common import LATCHED_QOS, LATEST_QOS, PUB_QOS, DiagnosticsPublisher, RejectionLog, RateMeter, fail, run_node, split_cli
 from softhand_sim.ros.params import declare_node_params
+from softhand_sim.ros.tf import TfBroadcaster
 from softhand_sim.timing import StepStats
 
 NODE_NAME = "sim_node"
@@ -90,6 +92,9 @@ class SimNode(Node):
         self.marker_serializer = rm.TriangleMarkerSerializer()  # numpy-built CDR: 10x faster than rclpy's
         self.last_marker = -np.inf
         self.contact_serializer = ContactMarkerSerializer()  # force arrows, numpy-built CDR like the skin's
+        # --- TF (ros/tf.py): bones on /tf each step, ground and static objects on /tf_static;
+        # without tf2_msgs in the venv it logs one warning and publishes nothing.
+        self.tf = TfBroadcaster(self, self.params["hand_side"], self.runtime.scene, PUB_QOS, LATCHED_QOS)
 
     # -------------------------------------------------------------------- inputs
     def reject(self, reason, detail):
@@ -127,6 +132,7 @@ class SimNode(Node):
         self.cg_iters.add(out.stats.cg_iters)
         stamp = rm.stamp_from_seconds(out.t)  # the time of the state: the end of the step
         self.pub_bones.publish(rm.pose_array_from_numpy(out.bone_poses, stamp))
+        self.tf.publish_bones(out.bone_poses, stamp)  # TF: the same poses and stamp as /hand/bones
         if len(out.object_names):
             self.pub_objects.publish(rm.object_states_from_numpy(
                 out.object_names, out.object_poses, out.object_twists, out.object_accels, stamp))

@@ -66,9 +66,12 @@ TOPIC_TYPES = {
     "/hand/contact_markers": "visualization_msgs/msg/MarkerArray",
     "/world/markers": "visualization_msgs/msg/MarkerArray",
     "/diagnostics": "diagnostic_msgs/msg/DiagnosticArray",
+    # built into the venv by tools/build_tf2_msgs.py; may be missing (no compiler): see ros/tf.py
+    "/tf": "tf2_msgs/msg/TFMessage",
+    "/tf_static": "tf2_msgs/msg/TFMessage",
 }
 #: Topics whose publisher is transient local (subscribe with LATCHED_QOS to get the kept sample).
-LATCHED_TOPICS = frozenset({"/hand/skin_mesh"})
+LATCHED_TOPICS = frozenset({"/hand/skin_mesh", "/tf_static"})
 
 
 def message_class(type_name: str):
