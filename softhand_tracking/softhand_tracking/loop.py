@@ -272,6 +272,7 @@ class TrackingLoop:
         self._prev_tracked = None
         self._ref = np.zeros((BONE_COUNT, 6))
         self.sim_t = -np.inf
+        self.sim_drops = 0             # sim copies dropped after sim_timeout without /hand/bones
 
     @property
     def tracked(self) -> np.ndarray:
@@ -335,6 +336,7 @@ class TrackingLoop:
             self._ref[:] = 0.0
         if self.bones.sim_active and t - self.sim_t > self.sim_timeout:
             self.bones.set_sim(None)
+            self.sim_drops += 1
         return self.bones.step()
 
 
