@@ -271,4 +271,5 @@ class SimRuntime:
         c = self.contacts
         return {"contacts": int(c.count), "collision_ms": float(c.collision_ms),
                 "rejected_steps": self.rejected_steps, "steps": self.steps,
+                "copy_gaps": sum(c.gaps for c in self.copies),
                 "stale_objects": ",".join(self.stale_objects(self.last_t)) or "-"}

@@ -10,6 +10,7 @@ All physics lives in softhand_sim.runtime; this file converts messages and owns 
 from __future__ import annotations
 
 import argparse
+import math
 import time
 
 import numpy as np
@@ -32,6 +33,7 @@ from softhand_sim.timing import StepStats
 NODE_NAME = "sim_node"
 DIAG_WINDOW = 1000  # steps in the /diagnostics step-time and CG statistics
 REJECT_LOG_PERIOD = 2.0  # [s] at most one log line per rejection reason per period
+TARGET_GAP_S = 0.25  # [s] /hand/intermediate_bones silent this long: a gap (lost link, stopped tracker)
 
 
 def build_parser():
@@ -75,6 +77,8 @@ class SimNode(Node):
         self.step_ms = StepStats(window=DIAG_WINDOW, budget=1e3 * self.dt)
         self.cg_iters = StepStats(window=DIAG_WINDOW)
         self.last_guard_warning = ""
+        self.last_target_rx, self.target_gaps = math.inf, 0  # inf: the first target is no gap
+        self.target_delay_ms = StepStats(window=DIAG_WINDOW)  # [ms] receipt - stamp of the targets
         self.pub_bones = self.create_publisher(PoseArray, "/hand/bones", PUB_QOS)
         self.pub_objects = self.create_publisher(MultiDOFJointTrajectory, "/hand/object_states", PUB_QOS)
         self.pub_skin = self.create_publisher(PointCloud2, "/hand/skin_vertices", PUB_QOS)
@@ -95,12 +99,19 @@ class SimNode(Node):
         # --- TF (ros/tf.py): bones on /tf each step, ground and static objects on /tf_static;
         # without tf2_msgs in the venv it logs one warning and publishes nothing.
         self.tf = TfBroadcaster(self, self.params["hand_side"], self.runtime.scene, PUB_QOS, LATCHED_QOS)
+        rate = self.params["skin_vertices_rate"]
+        self.skin_period, self.last_skin = (1.0 / rate if rate > 0 else 0.0), -np.inf
 
     # -------------------------------------------------------------------- inputs
     def reject(self, reason, detail):
         self.rejections.log(reason, detail)
 
     def on_bones(self, msg):
+        now = time.monotonic()
+        if now - self.last_target_rx > TARGET_GAP_S:  # counted when the targets come back
+            self.target_gaps += 1
+        self.last_target_rx = now
+        self.target_delay_ms.add(1e3 * (self.now_s() - rm.stamp_to_seconds(msg.header.stamp)))  # clocks in sync
         try:
             poses = rm.pose_array_to_numpy(msg)
             self.runtime.set_bone_targets(poses, rm.stamp_to_seconds(msg.header.stamp))
@@ -136,7 +147,10 @@ class SimNode(Node):
         if len(out.object_names):
             self.pub_objects.publish(rm.object_states_from_numpy(
                 out.object_names, out.object_poses, out.object_twists, out.object_accels, stamp))
-        if self.params["publish_skin_vertices"]:
+        # on demand (nobody subscribed: no 142 kB message built) and at most at skin_vertices_rate
+        if (self.params["publish_skin_vertices"] and t - self.last_skin >= self.skin_period - 1e-6
+                and self.pub_skin.get_subscription_count()):
+            self.last_skin = t
             self.pub_skin.publish(rm.xyz_cloud_from_numpy(out.skin_vertices, stamp))
         c = out.contacts
         self.pub_contacts.publish(rm.contacts_cloud_from_numpy(
@@ -159,6 +173,8 @@ class SimNode(Node):
             "cg_iters_p50": self.cg_iters.median(),
             "cg_iters_max": int(self.cg_iters.max()) if len(self.cg_iters) else 0,
             "overruns": self.step_ms.over_budget,
+            "target_gaps": self.target_gaps, "target_delay_ms_p50": self.target_delay_ms.median(),
+            "target_age_s": time.monotonic() - self.last_target_rx if math.isfinite(self.last_target_rx) else -1.0,
             **self.runtime.diagnostics(),
             **{f"rejected_{k}": v for k, v in self.rejections.counts.items()},
         }

@@ -335,6 +335,7 @@ class TrackingLoop:
         self.sim_t = -np.inf
         self.last_contact_t = -np.inf  # [s] last time the simulated hand touched something
         self._last_step_t = None
+        self.sim_drops = 0             # sim copies dropped after sim_timeout without /hand/bones
 
     @property
     def tracked(self) -> np.ndarray:
@@ -407,6 +408,7 @@ class TrackingLoop:
             self._ref[:] = 0.0
         if self.bones.sim_active and t - self.sim_t > self.sim_timeout:
             self.bones.set_sim(None)
+            self.sim_drops += 1
         self._update_feedback_gain(t)
         cfg = self.bones.config
         since = self.time_since_tracker(t)

@@ -157,8 +157,8 @@ class TrackingNode(Node):
             **{f"rejected_{reason}": n for reason, n in adapter.rejected.items()},
             "time_since_tracker_s": since if np.isfinite(since) else -1.0,
             "holding": self.loop.holding, "holds": self.loop.holds,
-            "sim_copy": self.loop.bones.sim_active, "bad_sim_messages": self.bad_sim_messages,
-            "feedback_gain": self.loop.bones.sim_gain,
+            "sim_copy": self.loop.bones.sim_active, "sim_copy_drops": self.loop.sim_drops,
+            "bad_sim_messages": self.bad_sim_messages, "feedback_gain": self.loop.bones.sim_gain,
         }
         if not self.loop.initialized:
             return values, "warn", "waiting for the first valid tracker frame"

@@ -136,6 +136,7 @@ class WorldNode(Node):
             "engine_time": self.world.time,
             "coupled_objects": ",".join(coupled),
             "stale_copies": ",".join(stale),
+            "copy_gaps": sum(c.gaps for c in self.world.copies),
             "late_resyncs": self.scheduler.resyncs,
             **{f"rejected_{k}": v for k, v in self.rejections.counts.items()},
         }

@@ -90,6 +90,16 @@ def test_object_copy_staleness_and_plain_mode():
     np.testing.assert_allclose(copy.target(5.05)[0], pose)
 
 
+def test_object_copy_counts_gaps():
+    """A copy stamped more than `timeout` after the one before counts one gap (a decoupling that
+    ended); the first copy and copies on time count none."""
+    copy = ObjectCopy("ball", timeout=0.1)
+    pose = [0, 0, 1.0, 0, 0, 0, 1.0]
+    for stamp in (1.0, 1.05, 1.1, 1.3, 1.35, 2.0):
+        copy.update(pose, np.zeros(6), np.zeros(6), stamp)
+    assert copy.gaps == 2
+
+
 @pytest.mark.parametrize("bad", [
     dict(pose=[0, 0, np.nan, 0, 0, 0, 1]), dict(twist=[0, 0, 0, np.inf, 0, 0]), dict(pose=[0, 0, 0, 0, 0, 0, 0]),
     dict(accel=[0, 0, 0]), dict(stamp=float("nan"))])

@@ -141,6 +141,22 @@ def test_nothing_before_the_first_frame():
     assert loop.step(0.004) is None
 
 
+def test_sim_copy_dropped_after_timeout_is_counted():
+    """/hand/bones silent for longer than sim_timeout: the sim copy is dropped once and counted."""
+    loop = TrackingLoop(sim_timeout=0.5)
+    stamps, joints, _ = tracker_bags.sample("grasp_short")
+    loop.on_tracker(joints[0], 0.0)
+    loop.on_sim_bones(_rest_bones(), 0.0)
+    loop.step(0.4)
+    assert loop.bones.sim_active and loop.sim_drops == 0
+    loop.step(0.6)
+    loop.step(0.7)
+    assert not loop.bones.sim_active and loop.sim_drops == 1
+    loop.on_sim_bones(_rest_bones(), 0.8)
+    loop.step(0.8)
+    assert loop.bones.sim_active and loop.sim_drops == 1
+
+
 def _run_bag(name, dt=DT, extra=0.0):
     """Replays a synthetic scenario into TrackingLoop at 250 Hz; rows (t, palm error [m], holding)."""
     stamps, joints, _ = tracker_bags.sample(name)

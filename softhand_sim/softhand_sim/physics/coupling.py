@@ -93,7 +93,8 @@ class ObjectCopy:
     the pose and twist at time t: extrapolated with constant acceleration, or the plain copy when
     `extrapolate` is False (the explicit copy the paper warns about, kept for comparison).
     `is_stale(t)` is True when no copy arrived or the newest is older than `timeout` [s]: a stale
-    copy must not be coupled to (the object is left to its own simulation).
+    copy must not be coupled to (the object is left to its own simulation). `gaps` counts the
+    copies stamped more than `timeout` after the one before (a lost link, a stopped peer).
 
     Both simulations advance positions with the END-of-step velocity (backward Euler on the hand
     side, symplectic Euler in pybullet), so under constant acceleration a their sampled positions
@@ -115,6 +116,7 @@ class ObjectCopy:
         self.stamp = -np.inf
         self.source_dt = source_dt
         self._stamp_step = 0.0  # spacing of the last two stamps [s]
+        self.gaps = 0  # copies that came more than `timeout` after the previous one (each ends a decoupling)
 
     def update(self, pose, twist, accel, stamp):
         """Store a copy; raises ValueError naming the object on bad shapes or non-finite values."""
@@ -129,6 +131,8 @@ class ObjectCopy:
         pose = pose.copy()
         pose[3:7] /= qn
         gap = float(stamp) - self.stamp
+        if self.pose is not None and gap > self.timeout:
+            self.gaps += 1
         self._stamp_step = gap if 0.0 < gap <= self.timeout else 0.0
         self.pose, self.twist, self.accel, self.stamp = pose, twist.copy(), accel.copy(), float(stamp)
 

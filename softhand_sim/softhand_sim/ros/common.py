@@ -43,9 +43,13 @@ LATCHED_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
 #: /tracker/hand_joints subscription: best effort so that any tracker (sensor-data QoS) matches.
 SENSOR_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=5,
                         reliability=ReliabilityPolicy.BEST_EFFORT, durability=DurabilityPolicy.VOLATILE)
-#: Subscriptions to state topics (/hand/bones, /world/object_states, ...): only the latest matters.
+#: Subscriptions to state topics (/hand/bones, /world/object_states, ...): only the latest matters,
+#: so best effort: a lost packet is not resent behind newer states. Reliable, a reader delivers in
+#: order and waits for the resend of a lost sample (the writer's next heartbeat): with 2 % loss
+#: between hosts the reliable recorder got the targets 0.3-1.0 s late at the median, the best-effort
+#: sim_node as early as without loss (tests/pipeline/test_across_hosts.py).
 LATEST_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
-                        reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE)
+                        reliability=ReliabilityPolicy.BEST_EFFORT, durability=DurabilityPolicy.VOLATILE)
 #: Recorder subscriptions: reliable, deep enough to absorb a burst while the writer is busy.
 RECORD_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000,
                         reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE)
