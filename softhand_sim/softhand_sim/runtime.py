@@ -78,7 +78,7 @@ class SimRuntime:
         self.params = params
         self.scene = scene if scene is not None else load_scene(params["scene_file"] or None)
         self.asset = asset if asset is not None else load_or_build_hand(
-            hand_measures(params.get("hand_measures", "default")), side=params["hand_side"], resolution=params["mesh"])
+            hand_measures(params["hand_measures"]), side=params["hand_side"], resolution=params["mesh"])
         self.objects = list(self.scene.dynamic_objects)
         self.object_names = [o.name for o in self.objects]
         self.model = build_model(self.asset, params, self.objects)
