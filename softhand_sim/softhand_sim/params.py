@@ -72,6 +72,9 @@ SIM = {
                         positive=True),
     "nonlinear_w_max": P(float, 2500.0, "J/m^3", f"energy density threshold W_max of Eq. 8 ({_PAPER}: 2500)", positive=True),
     "nonlinear_k": P(float, 1000.0, "J/m^3", f"nonlinear stiffness k of Eq. 8 ({_PAPER}: 1000); 0 = linear co-rotational", 0.0),
+    "tissue_stress_stiffness": P(bool, True, "-", "add the rotation (stress) stiffness the co-rotational tissue Hessian "
+                                 "leaves out, kept PSD (energies/tissue.py): stretched tissue stays stable with one "
+                                 "Newton step per time step; off = the fixed-rotation Hessian of Eq. 10"),
     "polar_iterations": P(int, 3, "-", "iterations per step of the warm-started polar decomposition giving each tet's rotation",
                           1, 100),
     "bone_tissue_k_total": P(float, 3.2e6, "N/m", f"bone-tissue total coupling stiffness k_total of Eq. 11 ({_PAPER}: 3.2e6)",

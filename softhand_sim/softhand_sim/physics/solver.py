@@ -122,6 +122,7 @@ class Solver:
         self._lame = tissue.lame(float(p["youngs_modulus"]), float(p["poisson_ratio"]))
         self._triplets = pcg_mod.triplet_pattern(m.indptr, m.indices)
         self._fused_tissue = tissue.is_isotropic_K0(m.tet_K0, m.tet_Dm_inv, m.tet_volume, *self._lame)
+        self._stress = bool(p["tissue_stress_stiffness"])  # H_rot: the tissue's rotation stiffness
 
     # ---- the stages of the step
     def collide(self, state):
@@ -144,11 +145,15 @@ class Solver:
             e = tissue.add_all_fused(state.node_x, m.tets, m.tet_Dm_inv, m.tet_volume, self._lame[0],
                                      self._lame[1], state.tet_q, int(p["polar_iterations"]),
                                      float(p["nonlinear_k"]), float(p["nonlinear_w_max"]), g,
-                                     m.tet_slots, vals)
+                                     m.tet_slots, vals, self._stress)
         else:
             tissue.update_rotations(state.node_x, m.tets, m.tet_Dm_inv, state.tet_q, int(p["polar_iterations"]))
             e = tissue.add_all(state.node_x, m.node_rest, m.tets, m.tet_K0, m.tet_volume, state.tet_q,
                                float(p["nonlinear_k"]), float(p["nonlinear_w_max"]), g, m.tet_slots, vals)
+            if self._stress:  # the isotropic H_rot of the params' material
+                tissue.add_stress_hessian(state.node_x, m.tets, m.tet_Dm_inv, m.tet_volume, self._lame[0],
+                                          self._lame[1], state.tet_q, float(p["nonlinear_k"]),
+                                          float(p["nonlinear_w_max"]), m.tet_slots, vals)
         e += joints.add_all(state.body_x, state.body_q, m.joint_parent, m.joint_child,
                             m.joint_r_parent, m.joint_r_child, float(p["joint_stiffness"]),
                             m.joint_rest_rotation, m.jrow_joint, m.jrow_axis, m.jrow_lo, m.jrow_hi,
