@@ -121,10 +121,11 @@ class PadPinch:
 
 class Fist:
     """The four fingers curl together (every flexion of index..little at u times its upper
-    limit, thumb straight) until their rigid overlap with the palm reaches `depth` [m]
-    (FIST_PRESS): 1 cm beyond touching. The fingertips touch the palm at u ~ 0.98, so the
-    pressed targets lie beyond DIGIT_LIMITS (u ~ 1.2; the tracked hand may ask that, the sim's
-    joint-limit penalty and the contact resist). Closes over T_CLOSE [s] and holds."""
+    limit, thumb straight) until they touch the palm (u_touch ~ 0.98), then the knuckles (MCP
+    flexion of the four fingers) turn on by `extra` [rad] until the fingers' rigid overlap with
+    the palm reaches `depth` [m] (FIST_PRESS): 1 cm beyond touching. Those targets lie beyond the
+    knuckles' DIGIT_LIMITS (the tracked hand may ask that; the joint-limit penalty and the
+    contact resist). Closes over T_CLOSE [s] and holds."""
 
     T_CLOSE = 0.6
 
@@ -132,13 +133,19 @@ class Fist:
         self.palm = np.asarray(asset.bone_rest_pose[0], dtype=np.float64)
         hi = DIGIT_LIMITS[:, :, 1]
 
-        def angles(u):
+        def curl(u):
             a = np.zeros((5, 4))
             a[1:, 1:] = u * hi[1:, 1:]
             return a
+        self.u_touch = press(smodel, self.palm, curl, FINGER_SEGMENTS, (PALM,), 0.0)
+        touch = curl(self.u_touch)
+
+        def angles(extra):
+            a = touch.copy()
+            a[1:, 1] += extra
+            return a
         self.angles_of = angles
-        self.u_touch = press(smodel, self.palm, angles, FINGER_SEGMENTS, (PALM,), 0.0, 0.0, 1.6)
-        self.u_press = press(smodel, self.palm, angles, FINGER_SEGMENTS, (PALM,), depth, 0.0, 1.6)
+        self.u_press = press(smodel, self.palm, angles, FINGER_SEGMENTS, (PALM,), depth, 0.0, 1.0)
         self.pressed = angles(self.u_press)
         self.overlap = rigid_overlap(smodel, forward_kinematics(self.palm, self.pressed)[1],
                                      FINGER_SEGMENTS, (PALM,))
@@ -162,3 +169,33 @@ def run(solver, state, control, script, seconds, dt=1.0 / 60.0, on_step=None):
         if on_step is not None:
             on_step(k, stats)
     return stats
+
+
+def skin_penetration(smodel, node_x, tets, triangles, within=0.003):
+    """Deepest [m] skin point inside the deformed skin of another segment it may touch, measured
+    without the contact list: for every allowed (point, segment) pair whose nearest skin vertex of
+    that segment (current positions) is within `within` [m], the depth below that vertex's tangent
+    plane ((x_v - x_p) . n_v, n_v the deformed skin's outward vertex normal). Returns
+    (depth, point, segment) of the deepest."""
+    from scipy.spatial import cKDTree
+    from softhand_sim.handmodel.rigid_skin import vertex_normals
+    x = np.einsum("pa,pai->pi", smodel.point_bary, node_x[tets[smodel.point_tet]])
+    normals = vertex_normals(x, triangles)
+    best = (-np.inf, -1, -1)
+    S = smodel.segment_count
+    for t in range(S):
+        own = np.flatnonzero(smodel.point_segment == t)
+        tree = cKDTree(x[own])
+        others = np.flatnonzero((smodel.pair_ok[smodel.point_segment, t] == 1)
+                                & ((smodel.point_exclude >> np.uint64(t)) & np.uint64(1) == 0))
+        dist, idx = tree.query(x[others], distance_upper_bound=within)
+        hit = np.isfinite(dist)
+        if not hit.any():
+            continue
+        v = own[idx[hit]]
+        p = others[hit]
+        depth = np.einsum("ij,ij->i", x[v] - x[p], normals[v])
+        k = int(np.argmax(depth))
+        if depth[k] > best[0]:
+            best = (float(depth[k]), int(p[k]), t)
+    return best

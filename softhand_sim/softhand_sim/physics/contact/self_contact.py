@@ -577,8 +577,8 @@ def build_self_contact_system(model, asset, kn=None, kf=None, mu=None, capacity=
     kf = float(p["self_contact_kf"]) if kf is None else kf
     mu = float(p["self_contact_friction"]) if mu is None else mu
     capacity = int(p["self_contact_capacity"]) if capacity is None else capacity
-    for key in ("rest_clearance", "margin"):
-        kwargs.setdefault(key, float(p[f"self_contact_{key}"]))
+    kwargs.setdefault("rest_clearance", float(p["self_contact_rest_clearance"]))
+    kwargs.setdefault("margin", float(p["self_contact_margin"]))
     sm = build_self_contact_model(model, model.skin_tet, model.skin_bary, asset.skin_triangles, seg, segb,
                                   adjacent, kn, kf, mu, **kwargs)
     return SelfContactSystem(sm, model, capacity)

@@ -239,6 +239,14 @@ def twist_modes(R, S, gr, lam, mu, y, q, scratch):
     (max(q_i, 0); 0 where m_i < _TWIST_MIN). R (3,3) rotation, S (3,3) ~ R^T F (its symmetric
     part is used), gr (4,3) grad N_a [1/m]; lam, mu [Pa]; scratch (7,3). Returns the number of
     modes with q > 0."""
+    # cheap exit (most tets: compressed or barely strained): Gershgorin bounds the smallest
+    # eigenvalue from below, hence every m_i from above; no q_i > 0 possible -> no eigen solve
+    s01, s02, s12 = 0.5 * (S[0, 1] + S[1, 0]), 0.5 * (S[0, 2] + S[2, 0]), 0.5 * (S[1, 2] + S[2, 1])
+    tr = S[0, 0] + S[1, 1] + S[2, 2]
+    low = min(S[0, 0] - abs(s01) - abs(s02), S[1, 1] - abs(s01) - abs(s12), S[2, 2] - abs(s02) - abs(s12))
+    if mu * (tr - low - 2.0) + lam * (tr - 3.0) <= 0.0:
+        q[0], q[1], q[2] = 0.0, 0.0, 0.0
+        return 0
     w = scratch[0]
     V = scratch[1:4]
     sym_eig3(S, w, V, scratch[4:7])
