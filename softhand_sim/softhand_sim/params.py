@@ -74,6 +74,9 @@ SIM = {
                         positive=True),
     "nonlinear_w_max": P(float, 2500.0, "J/m^3", f"energy density threshold W_max of Eq. 8 ({_PAPER}: 2500)", positive=True),
     "nonlinear_k": P(float, 1000.0, "J/m^3", f"nonlinear stiffness k of Eq. 8 ({_PAPER}: 1000); 0 = linear co-rotational", 0.0),
+    "tissue_stress_stiffness": P(bool, True, "-", "add the rotation (stress) stiffness the co-rotational tissue Hessian "
+                                 "leaves out, kept PSD (energies/tissue.py): stretched tissue stays stable with one "
+                                 "Newton step per time step; off = the fixed-rotation Hessian of Eq. 10"),
     "polar_iterations": P(int, 3, "-", "iterations per step of the warm-started polar decomposition giving each tet's rotation",
                           1, 100),
     "bone_tissue_k_total": P(float, 3.2e6, "N/m", f"bone-tissue total coupling stiffness k_total of Eq. 11 ({_PAPER}: 3.2e6)",
@@ -98,6 +101,19 @@ SIM = {
                     positive=True),
     "contact_kf": P(float, 1.5e7, "N/m^3", "tangential (friction) stiffness k_f of Eq. 13 per unit vertex area "
                     "(not in the paper); the Coulomb mu of each contact is the scene's friction", positive=True),
+    "self_contact_kn": P(float, 1.0e8, "N/m^3", "normal stiffness k_n of skin-skin contact per unit vertex area (Eq. 12 "
+                         "between two skins; 3x contact_kn: the pads of a 5 mm pinch stay within 1 mm)", positive=True),
+    "self_contact_kf": P(float, 5.0e7, "N/m^3", "friction stiffness k_f of skin-skin contact per unit vertex area (Eq. 13)",
+                         positive=True),
+    "self_contact_friction": P(float, 0.5, "-", "Coulomb mu of skin on skin (self contact, physics/contact/self_contact.py)",
+                               0.0),
+    "self_contact_capacity": P(int, 4096, "-", "cap on active skin-skin contacts per step (bounds the cost; the rest "
+                               "are counted as dropped)", 0, 1000000),
+    "self_contact_rest_clearance": P(float, 0.0015, "m", "a skin point never touches a segment whose skin lies this "
+                                     "close at rest (finger webs, the thumb's base): the self-contact rule besides "
+                                     "'adjacent bones never touch'", 0.0),
+    "self_contact_margin": P(float, 0.0005, "m", "self contact: points closer than this to the other segment's rest "
+                             "field are checked against its deformed skin", 0.0),
     "gravity": P(list, [0.0, 0.0, -9.81], "m/s^2", "gravity vector of the hand side, world frame "
                  "(world_node's gravity is its magnitude along -z: keep the two equal)", size=3),
     "gravity_bones": P(bool, False, "-", "apply gravity to the bones (off: the user's arm carries the hand; with "

@@ -8,7 +8,9 @@ Meshes: coarse / fine = the parametric hand model (handmodel.load_or_build_hand(
 box = the voxel box hand of bench_scenes (~850 tets, the paper's size; no hand builder needed).
 Scenarios live in SCENARIOS (name -> setup(solver, state) returning a per-step callback
 update(k, t)); `grasp` is the thumb-index pinch of contact_scenarios (PinchScenario).
-contacts_median: active skin contacts per step; collision_ms: median collision-detection time.
+contacts_median: active skin contacts per step; collision_ms: median object collision-detection
+time; self_contacts_median / self_collision_ms: the same for skin-skin contact (scenarios
+free_self: `free` with self contact on; fist: the tight fist of scenarios/self_contact.py).
 Timings: median and p99 of the whole step (wall clock, one thread: NUMBA_NUM_THREADS=1);
 setup = rotations + assembly (+ the preconditioner's refactorization), solve = PCG + advance.
 """
@@ -91,7 +93,52 @@ class _Press:
         return update
 
 
-SCENARIOS = {"free": _Free(), "press": _Press()}
+class _SelfContact:
+    """Skin-skin contact for a scenario (the hand model only): one SelfContactModel per asset,
+    a fresh system per solver."""
+
+    def __init__(self):
+        self._smodel = None
+
+    def self_contacts(self, model):
+        from softhand_sim.physics.contact import self_contact
+        if getattr(self.asset, "skin_triangles", None) is None:
+            raise ValueError("self contact needs the hand model (--mesh coarse or fine)")
+        if self._smodel is None:
+            self._smodel = self_contact.build_self_contact_system(model, self.asset).model
+        return self_contact.SelfContactSystem(self._smodel, model, int(model.params["self_contact_capacity"]))
+
+
+class _FreeSelf(_SelfContact, _Free):
+    """`free` with skin-skin contact on."""
+
+    def __init__(self):
+        _Free.__init__(self)
+        _SelfContact.__init__(self)
+
+
+class _Fist(_SelfContact):
+    """The tight fist (scenarios/self_contact.Fist): the fingers close over 0.6 s to 1 cm beyond
+    touching the palm and hold."""
+
+    def __init__(self):
+        super().__init__()
+        self.asset = None
+
+    def objects(self, asset):
+        self.asset = asset
+        return ()
+
+    def __call__(self, solver, state, control):
+        from softhand_sim.scenarios.self_contact import Fist
+        script = Fist(self.asset, solver.self_contacts.model)
+
+        def update(k, t):
+            control.set_bone_targets(solver.model, script.bone_targets(t))
+        return update
+
+
+SCENARIOS = {"free": _Free(), "press": _Press(), "free_self": _FreeSelf(), "fist": _Fist()}
 from softhand_sim.scenarios.contact import PinchScenario  # noqa: E402
 SCENARIOS["grasp"] = PinchScenario()  # thumb-index pinch of the ball, lifted (contact_scenarios.py)
 
@@ -106,15 +153,17 @@ def run(scenario, mesh, steps, preconditioner):
                         objects=objects(asset) if objects else ())
     t0 = time.perf_counter()
     contacts = getattr(SCENARIOS[scenario], "contacts", lambda model: None)  # ... and contact
-    warm = Solver(model, contacts=contacts(model))  # compile every kernel once on a throwaway state
+    self_contacts = getattr(SCENARIOS[scenario], "self_contacts", lambda model: None)  # ... and skin on skin
+    warm = Solver(model, contacts=contacts(model), self_contacts=self_contacts(model))  # compile once
     ws, wc = model.initial_state(), model.control()
     SCENARIOS[scenario](warm, ws, wc)(0, 0.0)
     warm.step(ws, wc, DT)
     compile_s = time.perf_counter() - t0
-    solver = Solver(model, contacts=contacts(model))
+    solver = Solver(model, contacts=contacts(model), self_contacts=self_contacts(model))
     state, control = model.initial_state(), model.control()
     update = SCENARIOS[scenario](solver, state, control)
     ms, setup, solve, iters, contacts, coll, caps, refac = [], [], [], [], [], [], 0, 0
+    self_n, self_ms = [], []
     for k in range(steps):
         update(k, k * DT)
         t = time.perf_counter()
@@ -125,6 +174,8 @@ def run(scenario, mesh, steps, preconditioner):
         iters.append(st.cg_iters)
         contacts.append(st.contacts)
         coll.append(st.collision_ms)
+        self_n.append(st.self_contacts)
+        self_ms.append(st.self_collision_ms)
         caps += st.hit_cap
         refac += st.refactored
     ms = np.array(ms)
@@ -137,6 +188,7 @@ def run(scenario, mesh, steps, preconditioner):
         "cg_iters_median": float(np.median(iters)), "cg_iters_max": int(max(iters)),
         "cg_hit_cap": int(caps), "refactors": int(refac),
         "contacts_median": float(np.median(contacts)), "collision_ms": float(np.median(coll)),
+        "self_contacts_median": float(np.median(self_n)), "self_collision_ms": float(np.median(self_ms)),
         "compile_s": compile_s, "finite": bool(np.all(np.isfinite(state.node_x))),
         "paper_steps_per_s": PAPER_STEPS_PER_S,
     }
@@ -144,7 +196,7 @@ def run(scenario, mesh, steps, preconditioner):
 
 COLUMNS = ["scenario", "mesh", "tets", "dofs", "preconditioner", "median_ms", "p99_ms",
            "steps_per_s", "setup_ms", "solve_ms", "cg_iters_median", "cg_hit_cap", "refactors",
-           "contacts_median", "collision_ms", "compile_s"]
+           "contacts_median", "collision_ms", "self_contacts_median", "self_collision_ms", "compile_s"]
 
 
 def format_table(rows):

@@ -8,10 +8,12 @@ H, grad U from the sum of the terms of Eq. 5. PCG warm-started from the previous
 
 reads the Model (fixed), the Control (this step's inputs: Eq. 14 targets and stiffnesses, node
 loads; control.py) and advances the State in place. Its stages, in this order:
-  1. collide   the contact system given to the Solver (contact/detection.ContactSystem, or None):
-               detection, anchors, stick/slip -> this step's active contact list
+  1. collide   the contact systems given to the Solver (contact/detection.ContactSystem for
+               objects, contact/self_contact.SelfContactSystem for skin on skin; either may be
+               None): detection, anchors, stick/slip -> this step's active contact lists
   2. assemble  gradient and CSR Hessian of every term at the state (`assemble`): tissue, joints,
-               bone-tissue, Eq. 14 targets, gravity, node loads, contacts (Eq. 12-13)
+               bone-tissue, Eq. 14 targets, gravity, node loads, contacts and self contacts
+               (Eq. 12-13)
   3. PCG       (M + dt^2 H) v = M v - dt grad U
   4. advance   positions and orientations by dt v
 Each term is one Python->numba call per step (not per element or CG iteration).
@@ -37,10 +39,12 @@ class StepStats:
     energy: float = 0.0         # potential energy U at the start of the step [J]
     setup_ms: float = 0.0       # rotations + assembly of gradient and M + dt^2 H
     solve_ms: float = 0.0       # PCG + advance
-    collision_ms: float = 0.0   # the collide stage
+    collision_ms: float = 0.0   # the collide stage: object contacts
+    self_collision_ms: float = 0.0  # the collide stage: skin-skin contacts
     hit_cap: bool = False       # CG stopped at cg_max_iterations
     refactored: bool = False    # a new factor preconditioner was published in this step (in setup)
     contacts: int = 0
+    self_contacts: int = 0
 
 
 @njit(cache=True)
@@ -82,11 +86,14 @@ class Solver:
     cg_max_iterations, preconditioner) overriding the model's own (model.params).
     contacts: the ContactSystem of the collide stage (contact/detection.build_contact_system), or None
     for a step without contact.
+    self_contacts: the SelfContactSystem of skin-skin contact (contact/self_contact.
+    build_self_contact_system), or None.
     """
 
-    def __init__(self, model, params=None, contacts=None):
+    def __init__(self, model, params=None, contacts=None, self_contacts=None):
         self.model = m = model
         self.contacts = contacts
+        self.self_contacts = self_contacts
         p = dict(model.params)
         p.update(params or {})
         self.params = p
@@ -122,12 +129,16 @@ class Solver:
         self._lame = tissue.lame(float(p["youngs_modulus"]), float(p["poisson_ratio"]))
         self._triplets = pcg_mod.triplet_pattern(m.indptr, m.indices)
         self._fused_tissue = tissue.is_isotropic_K0(m.tet_K0, m.tet_Dm_inv, m.tet_volume, *self._lame)
+        self._stress = bool(p["tissue_stress_stiffness"])  # H_rot: the tissue's rotation stiffness
 
     # ---- the stages of the step
     def collide(self, state):
         """Stage 1: contact detection and anchor update at state (no-op without contacts)."""
         if self.contacts is not None:
             self.contacts.collide(state.node_x, state.body_x, state.body_q, state.v, self.model.body_dof0)
+        if self.self_contacts is not None:
+            self.self_contacts.collide(state.node_x, state.body_x, state.body_q, state.v,
+                                       self.model.body_dof0, state.tet_q)
 
     def assemble(self, state, control):
         """Stage 2: fill self.grad and self.values with dU/dq and H at state (rotations refreshed)
@@ -144,11 +155,15 @@ class Solver:
             e = tissue.add_all_fused(state.node_x, m.tets, m.tet_Dm_inv, m.tet_volume, self._lame[0],
                                      self._lame[1], state.tet_q, int(p["polar_iterations"]),
                                      float(p["nonlinear_k"]), float(p["nonlinear_w_max"]), g,
-                                     m.tet_slots, vals)
+                                     m.tet_slots, vals, self._stress)
         else:
             tissue.update_rotations(state.node_x, m.tets, m.tet_Dm_inv, state.tet_q, int(p["polar_iterations"]))
             e = tissue.add_all(state.node_x, m.node_rest, m.tets, m.tet_K0, m.tet_volume, state.tet_q,
                                float(p["nonlinear_k"]), float(p["nonlinear_w_max"]), g, m.tet_slots, vals)
+            if self._stress:  # the isotropic H_rot of the params' material
+                tissue.add_stress_hessian(state.node_x, m.tets, m.tet_Dm_inv, m.tet_volume, self._lame[0],
+                                          self._lame[1], state.tet_q, float(p["nonlinear_k"]),
+                                          float(p["nonlinear_w_max"]), m.tet_slots, vals)
         e += joints.add_all(state.body_x, state.body_q, m.joint_parent, m.joint_child,
                             m.joint_r_parent, m.joint_r_child, float(p["joint_stiffness"]),
                             m.joint_rest_rotation, m.jrow_joint, m.jrow_axis, m.jrow_lo, m.jrow_hi,
@@ -163,6 +178,8 @@ class Solver:
         e += gravity.add_loads(state.node_x, state.body_x, control.node_force, control.body_force, b0, g)
         if self.contacts is not None:
             e += self.contacts.add_all(state, m, g, vals)
+        if self.self_contacts is not None:
+            e += self.self_contacts.add_all(state, m, g, vals)
         return e
 
     def step(self, state, control, dt):
@@ -192,11 +209,14 @@ class Solver:
         _advance(state.node_x, state.v, state.body_x, state.body_q, state.body_pose,
                  m.body_com_local, dt, m.body_dof0)
         t3 = time.perf_counter()
+        sc = self.self_contacts
         self.last_stats = StepStats(
             cg_iters=int(iters), residual=float(res), energy=float(energy),
-            setup_ms=(t2 - t1) * 1e3, solve_ms=(t3 - t2) * 1e3, collision_ms=(t1 - t0) * 1e3,
+            setup_ms=(t2 - t1) * 1e3, solve_ms=(t3 - t2) * 1e3, collision_ms=(t1 - t0) * 1e3 - (sc.collision_ms if sc is not None else 0.0),
             hit_cap=bool(cap), refactored=refactored,
-            contacts=int(self.contacts.count) if self.contacts is not None else 0)
+            contacts=int(self.contacts.count) if self.contacts is not None else 0,
+            self_collision_ms=sc.collision_ms if sc is not None else 0.0,
+            self_contacts=int(sc.count) if sc is not None else 0)
         return self.last_stats
 
     # ---- read-out

@@ -4,9 +4,18 @@ Per tet e with rest nodes X (4,3), current nodes x, rotation R_e (polar part of 
     u = R^T x - X  (12,),   E_lin = 1/2 u^T K0 u  [J],   K0 = V B^T C B  (computed once, Eq. 7)
     W = E_lin / V  [J/m^3]; if W > Wmax:  E += V * 1/2 k (W/Wmax - 1)^2               (Eq. 8)
 Gradient: g = s * R K0 u,  s = 1 + k/Wmax (W/Wmax - 1) (s = 1 below Wmax)            (Eq. 9)
-Hessian:  s * R K0 R^T + k/(Wmax^2 V) (R K0 u)(R K0 u)^T                             (Eq. 10)
-The R K0 R^T block drops dR/dx (the standard co-rotational stiffness): symmetric PSD, exact at
-R = const, off by O(strain) otherwise. The gradient is exact when R is the exact polar rotation
+Hessian:  s * (R K0 R^T + H_rot) + k/(Wmax^2 V) (R K0 u)(R K0 u)^T                   (Eq. 10)
+R K0 R^T is the standard co-rotational stiffness: it drops dR/dx (exact at R = const). H_rot
+(`stress_stiffness`, the solver's default; params tissue_stress_stiffness) adds that part back,
+kept positive semidefinite: for an isotropic material the energy is V psi(F),
+psi = mu |F - R|^2 + lam/2 (tr S - 3)^2 (S = R^T F), and the Hessian it misses is
+    H_rot = V sum_i max(q_i, 0) y_i y_i^T,  q_i = 4 (mu (m_i - 2) + lam (tr S - 3)) / m_i,
+    m_i = tr S - sigma_i,  y_i (12,) = 1/2 R (v_i x grad N_a) per node a,
+(sigma_i, v_i) the eigenpairs of S: the three "twist" modes of the rotation. Stretched tets
+(m_i > 2) get the stress stiffening of a taut string (q_i > 0: without it one Newton step per
+time step overshoots stretched modes and a bar stretched 20-40 % rings); compressed ones would
+get q_i < 0, clamped to 0 (the fixed-R Hessian there). Exact wherever every q_i >= 0.
+The gradient is exact when R is the exact polar rotation
 (R^T F symmetric), including inverted tets where R flips the smallest singular direction.
 
 Units: youngs [Pa], poisson [-], Wmax and k [J/m^3], positions [m].
@@ -179,6 +188,141 @@ def add_hessian(x, X, tets, K0, vol, tet_q, nl_k, nl_wmax, slots, values):
                 values[slots[e, p, q]] += H[p, q]
 
 
+# ---------------------------------------------------------------- rotation (stress) stiffness
+_TWIST_MIN = 1e-6  # [-] m_i below this (a tet flattened or inverted across two axes): no H_rot
+
+
+@njit(cache=True)
+def sym_eig3(S, w, V, A):
+    """Eigenvalues w (3,) and eigenvectors (columns of V (3,3)) of the symmetric part of the 3x3 S
+    (cyclic Jacobi; S is not modified, A (3,3) scratch). Round-off in a few sweeps for any S."""
+    a00, a01, a02, a11, a12, a22 = S[0, 0], 0.5 * (S[0, 1] + S[1, 0]), 0.5 * (S[0, 2] + S[2, 0]), \
+        S[1, 1], 0.5 * (S[1, 2] + S[2, 1]), S[2, 2]
+    for i in range(3):
+        for j in range(3):
+            V[i, j] = 1.0 if i == j else 0.0
+    A[0, 0], A[0, 1], A[0, 2] = a00, a01, a02
+    A[1, 0], A[1, 1], A[1, 2] = a01, a11, a12
+    A[2, 0], A[2, 1], A[2, 2] = a02, a12, a22
+    scale = abs(a00) + abs(a11) + abs(a22) + 1e-300
+    for _ in range(12):
+        off = A[0, 1] * A[0, 1] + A[0, 2] * A[0, 2] + A[1, 2] * A[1, 2]
+        if off <= 1e-30 * scale * scale:
+            break
+        for p, q in ((0, 1), (0, 2), (1, 2)):
+            apq = A[p, q]
+            if apq == 0.0:
+                continue
+            theta = (A[q, q] - A[p, p]) / (2.0 * apq)
+            t = (1.0 if theta >= 0.0 else -1.0) / (abs(theta) + np.sqrt(theta * theta + 1.0))
+            c = 1.0 / np.sqrt(t * t + 1.0)
+            s = t * c
+            for k in range(3):  # A <- J^T A J with the Givens rotation J in the (p, q) plane
+                akp, akq = A[k, p], A[k, q]
+                A[k, p] = c * akp - s * akq
+                A[k, q] = s * akp + c * akq
+            for k in range(3):
+                apk, aqk = A[p, k], A[q, k]
+                A[p, k] = c * apk - s * aqk
+                A[q, k] = s * apk + c * aqk
+            for k in range(3):
+                vkp, vkq = V[k, p], V[k, q]
+                V[k, p] = c * vkp - s * vkq
+                V[k, q] = s * vkp + c * vkq
+    w[0], w[1], w[2] = A[0, 0], A[1, 1], A[2, 2]
+
+
+@njit(cache=True)
+def twist_modes(R, S, gr, lam, mu, y, q, scratch):
+    """The rotation (stress) stiffness of one tet, see the module docstring: writes the three
+    twist modes y (3,4,3) [1/m] (mode i, node a) and their clamped stiffness q (3,) [Pa]
+    (max(q_i, 0); 0 where m_i < _TWIST_MIN). R (3,3) rotation, S (3,3) ~ R^T F (its symmetric
+    part is used), gr (4,3) grad N_a [1/m]; lam, mu [Pa]; scratch (7,3). Returns the number of
+    modes with q > 0."""
+    # cheap exit (most tets: compressed or barely strained): Gershgorin bounds the smallest
+    # eigenvalue from below, hence every m_i from above; no q_i > 0 possible -> no eigen solve
+    s01, s02, s12 = 0.5 * (S[0, 1] + S[1, 0]), 0.5 * (S[0, 2] + S[2, 0]), 0.5 * (S[1, 2] + S[2, 1])
+    tr = S[0, 0] + S[1, 1] + S[2, 2]
+    low = min(S[0, 0] - abs(s01) - abs(s02), S[1, 1] - abs(s01) - abs(s12), S[2, 2] - abs(s02) - abs(s12))
+    if mu * (tr - low - 2.0) + lam * (tr - 3.0) <= 0.0:
+        q[0], q[1], q[2] = 0.0, 0.0, 0.0
+        return 0
+    w = scratch[0]
+    V = scratch[1:4]
+    sym_eig3(S, w, V, scratch[4:7])
+    tr = w[0] + w[1] + w[2]
+    active = 0
+    for i in range(3):
+        m = tr - w[i]
+        qi = 0.0
+        if m > _TWIST_MIN:
+            qi = 4.0 * (mu * (m - 2.0) + lam * (tr - 3.0)) / m
+        if qi <= 0.0:
+            q[i] = 0.0
+            continue
+        q[i] = qi
+        active += 1
+        v0, v1, v2 = V[0, i], V[1, i], V[2, i]
+        for a in range(4):
+            c0 = v1 * gr[a, 2] - v2 * gr[a, 1]   # v_i x grad N_a (rest axes)
+            c1 = v2 * gr[a, 0] - v0 * gr[a, 2]
+            c2 = v0 * gr[a, 1] - v1 * gr[a, 0]
+            for r in range(3):
+                y[i, a, r] = 0.5 * (R[r, 0] * c0 + R[r, 1] * c1 + R[r, 2] * c2)
+    return active
+
+
+@njit(cache=True)
+def add_stress_hessian(x, tets, Dm_inv, vol, lam, mu, tet_q, nl_k, nl_wmax, slots, values):
+    """Adds H_rot (module docstring; times the Eq. 9 scale s where W > Wmax) of every tet at the
+    rotations tet_q into CSR values through slots (T,12,12): the reference kernels' (add_all /
+    add_hessian) complement, isotropic material (lam, mu [Pa])."""
+    F = np.empty((3, 3))
+    G = np.empty((3, 3))
+    gr = np.empty((4, 3))
+    y = np.empty((3, 4, 3))
+    q = np.empty(3)
+    scratch = np.empty((7, 3))
+    for e in range(tets.shape[0]):
+        for k in range(3):
+            for c in range(3):
+                gr[k + 1, c] = Dm_inv[e, k, c]
+        for c in range(3):
+            gr[0, c] = -(gr[1, c] + gr[2, c] + gr[3, c])
+        for r in range(3):
+            for c in range(3):
+                acc = 0.0
+                for a in range(4):
+                    acc += x[tets[e, a], r] * gr[a, c]
+                F[r, c] = acc
+        R = quat_to_matrix(tet_q[e])
+        for r in range(3):
+            for c in range(3):
+                G[r, c] = R[0, r] * F[0, c] + R[1, r] * F[1, c] + R[2, r] * F[2, c]
+        if twist_modes(R, G, gr, lam, mu, y, q, scratch) == 0:
+            continue
+        V = vol[e]
+        scale = 1.0
+        if nl_k > 0.0:
+            e00, e11, e22 = G[0, 0] - 1.0, G[1, 1] - 1.0, G[2, 2] - 1.0
+            e01, e02, e12 = 0.5 * (G[0, 1] + G[1, 0]), 0.5 * (G[0, 2] + G[2, 0]), 0.5 * (G[1, 2] + G[2, 1])
+            tr = e00 + e11 + e22
+            W = mu * (e00 * e00 + e11 * e11 + e22 * e22 + 2.0 * (e01 * e01 + e02 * e02 + e12 * e12)) \
+                + 0.5 * lam * tr * tr
+            if W > nl_wmax:
+                scale = 1.0 + nl_k / nl_wmax * (W / nl_wmax - 1.0)
+        for i in range(3):
+            if q[i] == 0.0:
+                continue
+            c = scale * V * q[i]
+            for a in range(4):
+                for r in range(3):
+                    ya = c * y[i, a, r]
+                    for b in range(4):
+                        for s in range(3):
+                            values[np.uint64(slots[e, 3 * a + r, 3 * b + s])] += ya * y[i, b, s]
+
+
 # ---------------------------------------------------------------- fast path used by the solver
 # The solver's per-step kernel fuses the rotation update with the assembly and uses the closed form
 # of K0 for a linear tet of an isotropic material (no K0 read, ~1/4 of the flops):
@@ -255,16 +399,21 @@ def _polar_update(F, qx, qy, qz, qw, iterations):
 
 @njit(cache=True)
 def add_all_fused(x, tets, Dm_inv, vol, lam, mu, tet_q, iterations, nl_k, nl_wmax, grad, slots,
-                  values):
+                  values, stress_stiffness=False):
     """update_rotations + add_all in one pass for an isotropic material (lam, mu [Pa]; K0 not
     read): refreshes tet_q, returns the energy [J] (Eq. 7-8), adds the gradient (Eq. 9) into grad
-    and the Hessian (Eq. 10) into CSR values through slots (T,12,12)."""
+    and the Hessian (Eq. 10) into CSR values through slots (T,12,12); with stress_stiffness also
+    H_rot (= add_all + add_stress_hessian)."""
     F = np.empty((3, 3))
     D = np.empty((3, 3))
     gr = np.empty((4, 3))   # grad N_a [1/m]
     h = np.empty((4, 3))    # R grad N_a
     f = np.empty((4, 3))    # R K0 u per node [N]
     gg = np.empty((4, 4))
+    y = np.empty((3, 4, 3))  # twist modes (stress_stiffness)
+    qt = np.empty(3)
+    Rm = np.empty((3, 3))
+    scratch = np.empty((7, 3))
     e_sum = 0.0
     for e in range(tets.shape[0]):
         i0, i1, i2, i3 = tets[e, 0], tets[e, 1], tets[e, 2], tets[e, 3]
@@ -350,4 +499,19 @@ def add_all_fused(x, tets, Dm_inv, vol, lam, mu, tet_q, iterations, nl_k, nl_wma
                         values[np.uint64(slots[e, 3 * a + i, 3 * b + j])] += v
                         if a != b:
                             values[np.uint64(slots[e, 3 * b + j, 3 * a + i])] += v
+        if stress_stiffness:
+            Rm[0, 0], Rm[0, 1], Rm[0, 2] = R00, R01, R02
+            Rm[1, 0], Rm[1, 1], Rm[1, 2] = R10, R11, R12
+            Rm[2, 0], Rm[2, 1], Rm[2, 2] = R20, R21, R22
+            if twist_modes(Rm, G, gr, lam, mu, y, qt, scratch) > 0:
+                for m in range(3):
+                    if qt[m] == 0.0:
+                        continue
+                    c = scale * V * qt[m]
+                    for a in range(4):
+                        for i in range(3):
+                            ya = c * y[m, a, i]
+                            for b in range(4):
+                                for j in range(3):
+                                    values[np.uint64(slots[e, 3 * a + i, 3 * b + j])] += ya * y[m, b, j]
     return e_sum

@@ -1,0 +1,584 @@
+"""Skin-skin contact inside a hand (and between hands): detection, anchors and Coulomb stick/slip
+(the collide stage for energies/self_contact.py; issue #21).
+
+Geometry. The skin is cut into segments, one per bone (each skin vertex follows its nearest bone
+axis at rest, handmodel.rigid_skin). Each segment carries, built once at rest in its bone's
+frame, the signed distance field of its own skin (the segment's triangles, its open joint cuts
+closed by fans: a watertight surface) and, on the same grid, the index of its skin vertex nearest
+to each grid node. Each step:
+  broad phase   bounding spheres of the segments (bone frames, current poses) of the pairs
+                allowed to touch;
+  narrow phase  the skin points of one segment of a pair, moved into the other's bone frame: a
+                bounding-box test, then its field (both ways round: each way carries half of the
+                point's skin area, so the pressure is k_n x depth, as against objects);
+  anchor        a new contact's anchor is the field's closest surface point, kept as the other
+                segment's nearest skin vertex plus a short rest-frame offset and normal that turn
+                with that vertex's tet: the anchor moves with the *deformed* other skin, so both
+                skins flatten and the penetration is measured against the deformed surface
+                (n . D > 0), not against the rigid field;
+  friction      as contact/detection.py: stick while k_f |t| <= mu k_n (n . D), else slide the
+                anchor to the cone, back onto the surface (the field, at rest), then to the cone
+                once more; SLIDING (moving away) drops the friction stiffness along the slip.
+A contact is released when its point is outside the deformed surface (n . D <= 0) or deeper
+than MAX_DEPTH (it has passed through; the field finds it afresh on the right side).
+
+Which parts may touch (the rule):
+  - never two segments adjacent in the skeleton (the two sides of one joint's crease: their skin
+    is one continuous surface that the tissue itself keeps apart);
+  - never a skin point that lies within `rest_clearance` [m] of the other segment's skin at rest
+    (webs between the fingers, the thumb's base on the palm: skin that is already in touch or
+    part of the same fold at rest).
+Everything else may touch, across hands too: the two-hands case is the same code with both hands'
+segments in one list (segment_body points into the model's bodies, adjacency from each hand's
+joints; no pair of segments of different hands is adjacent).
+
+What the method misses (measured in tests/physics/test_self_contact.py and docs): the field of a
+segment does not deform. It decides which points are candidates and where a new anchor sits, so
+a point touching skin that bulged out by more than `margin` is caught late, and anchor
+projections are off by the local tissue strain near the surface; the depth itself is measured
+against the deformed skin through the anchor vertex. Contacts with skin of the same segment
+(a finger folding onto itself) and with adjacent segments are not handled.
+
+Cost is bounded: at most `capacity` contacts (the rest are counted in `dropped`), one field
+lookup per candidate point.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+from numba import njit
+
+from softhand_sim.physics.contact import sdf
+from softhand_sim.physics.contact.contact_model import vertex_areas
+from softhand_sim.physics.contact.sdf_mesh import mesh_signed_distance_grid
+from softhand_sim.physics.energies import self_contact as energy
+from softhand_sim.physics.rotations import quat_to_matrix
+
+STICK, SLIP, SLIDING = 0, 1, 2
+_CONE_SLACK = 1e-9
+MAX_DEPTH = 0.01  # [m] a kept contact deeper than this has passed through: released (found afresh)
+
+
+@dataclass
+class SelfContactModel:
+    """Static data. P skin points, S segments; grids packed flat (bone frames)."""
+    point_tet: np.ndarray      # (P,) i4
+    point_bary: np.ndarray     # (P,4)
+    point_rest: np.ndarray     # (P,3) [m] embedded rest position (world)
+    point_area: np.ndarray     # (P,) [m^2] half the vertex area (each pair is tested both ways)
+    point_segment: np.ndarray  # (P,) i4
+    point_exclude: np.ndarray  # (P,) u8 bit s: never touches segment s (rest_clearance rule)
+    seg_points: np.ndarray     # (P,) i4 point indices sorted by segment
+    seg_start: np.ndarray      # (S+1,) i8 range of each segment in seg_points
+    seg_body: np.ndarray       # (S,) i4 solver body (bone) carrying the segment
+    seg_rest_R: np.ndarray     # (S,3,3) bone rest rotation (world from bone)
+    seg_rest_o: np.ndarray     # (S,3) [m] bone rest origin
+    seg_lo: np.ndarray         # (S,3) [m] bone-frame box of the segment's skin
+    seg_hi: np.ndarray
+    seg_centre: np.ndarray     # (S,3) [m] bone frame
+    seg_radius: np.ndarray     # (S,) [m]
+    pair_ok: np.ndarray        # (S,S) u1: the two segments may touch
+    grid_values: np.ndarray    # concatenated f4 signed distances
+    grid_nearest: np.ndarray   # concatenated i4 nearest skin point of the segment
+    grid_adr: np.ndarray       # (S,2) i8
+    grid_origin: np.ndarray    # (S,3)
+    grid_voxel: np.ndarray     # (S,)
+    grid_dims: np.ndarray      # (S,3) i4
+    kn: float                  # [N/m^3]
+    kf: float
+    mu: float                  # Coulomb coefficient skin on skin
+    margin: float              # [m] field value below which a point is a candidate
+    build_s: float = 0.0
+
+    @property
+    def point_count(self):
+        return len(self.point_tet)
+
+    @property
+    def segment_count(self):
+        return len(self.seg_body)
+
+
+def _close_segment(vertices, triangles):
+    """Triangles (F,3) closed by a fan over each boundary loop to the loop's centroid, plus the
+    extended vertex array: a watertight surface for the crossing-parity sign."""
+    tri = np.asarray(triangles, np.int64)
+    edges = np.concatenate([tri[:, [0, 1]], tri[:, [1, 2]], tri[:, [2, 0]]])
+    key = {tuple(e) for e in edges.tolist()}
+    boundary = [e for e in edges.tolist() if (e[1], e[0]) not in key]  # half-edges without a twin
+    nxt = {}
+    for a, b in boundary:
+        nxt.setdefault(b, []).append(a)  # the cap walks the boundary the other way round
+    verts = [np.asarray(vertices, float)]
+    caps = []
+    n0 = len(vertices)
+    used = set()
+    for a, b in boundary:
+        if (a, b) in used:
+            continue
+        loop = [a]
+        cur = a
+        while True:  # follow reversed half-edges b -> a
+            cands = [c for c in nxt.get(cur, []) if (c, cur) not in used]
+            if not cands:
+                break
+            c = cands[0]
+            used.add((c, cur))
+            if c == a:
+                break
+            loop.append(c)
+            cur = c
+        if len(loop) < 3:
+            continue
+        centre = verts[0][loop].mean(axis=0)
+        ci = n0 + len(caps)
+        caps.append(centre)
+        for i in range(len(loop)):
+            tri = np.vstack([tri, [loop[i], loop[(i + 1) % len(loop)], ci]])
+    if caps:
+        verts.append(np.array(caps))
+    return np.concatenate(verts), tri
+
+
+def build_self_contact_model(model, points_rest_tet, points_bary, triangles, point_segment,
+                             segment_body, adjacent, kn=3.0e7, kf=1.5e7, mu=0.5,
+                             rest_clearance=0.0015, voxel=0.001, band=4, margin=0.0005):
+    """SelfContactModel of the skin points (embedded in model.tets: tet (P,), bary (P,4)),
+    skin triangles (F,3) over those points, point_segment (P,) (segment of each point),
+    segment_body (S,) (the model body, a bone, of each segment) and adjacent: pairs of segments
+    that never touch (the skeleton's joints). Units: m, N/m^3."""
+    t0 = time.perf_counter()
+    ptet = np.ascontiguousarray(points_rest_tet, np.int32)
+    pbary = np.ascontiguousarray(points_bary, float)
+    prest = np.einsum("pa,pai->pi", pbary, model.node_rest[model.tets[ptet]])
+    pseg = np.asarray(point_segment, np.int32)
+    segb = np.asarray(segment_body, np.int32)
+    S = len(segb)
+    if S > 64:
+        raise ValueError(f"{S} segments: the exclusion mask holds 64")
+    tri = np.asarray(triangles, np.int64)
+    area = 0.5 * vertex_areas(prest, tri)
+    pair_ok = np.ones((S, S), np.uint8)
+    np.fill_diagonal(pair_ok, 0)
+    for a, b in adjacent:
+        pair_ok[a, b] = pair_ok[b, a] = 0
+    rest_pose = model.body_rest_pose[segb]
+    Rr = np.array([quat_to_matrix(q) for q in rest_pose[:, 3:]])
+    orr = rest_pose[:, :3].copy()
+    lo, hi, centre, radius = (np.zeros((S, 3)), np.zeros((S, 3)), np.zeros((S, 3)), np.zeros(S))
+    values, nearest, adr, origin, vox, dims = [], [], [], [], [], []
+    tri_seg = pseg[tri]
+    start = 0
+    grids = []
+    from scipy.spatial import cKDTree
+    for s in range(S):
+        own = np.flatnonzero(pseg == s)
+        local = (prest - orr[s]) @ Rr[s]  # all points in this bone's rest frame
+        mine = local[own]
+        lo[s], hi[s] = mine.min(axis=0), mine.max(axis=0)
+        centre[s] = 0.5 * (lo[s] + hi[s])
+        radius[s] = np.linalg.norm(mine - centre[s], axis=1).max()
+        seg_tri = tri[(tri_seg == s).all(axis=1)]
+        remap = np.full(len(prest), -1, np.int64)
+        remap[own] = np.arange(len(own))
+        cv, ct = _close_segment(mine, remap[seg_tri])
+        org = lo[s] - band * voxel
+        dim = (np.ceil((hi[s] - lo[s]) / voxel - 1e-9).astype(np.int64) + 2 * band + 1).astype(np.int32)
+        vals = mesh_signed_distance_grid(np.ascontiguousarray(cv), np.ascontiguousarray(ct, np.int64),
+                                         org, float(voxel), dim).astype(np.float32)
+        nodes = sdf.grid_nodes(org, voxel, dim)
+        near = own[cKDTree(mine).query(nodes)[1]].astype(np.int32)
+        values.append(vals)
+        nearest.append(near)
+        adr.append((start, start + len(vals)))
+        start += len(vals)
+        origin.append(org)
+        vox.append(float(voxel))
+        dims.append(dim)
+        grids.append(sdf.DistanceGrid(org, float(voxel), dim, vals))
+    order = np.argsort(pseg, kind="stable").astype(np.int32)
+    seg_start = np.searchsorted(pseg[order], np.arange(S + 1)).astype(np.int64)
+    # rest_clearance rule: a point never touches a segment whose rest skin is that close
+    exclude = np.zeros(len(prest), np.uint64)
+    for s in range(S):
+        others = np.flatnonzero(pair_ok[pseg, s] == 1)
+        if len(others) == 0:
+            continue
+        d, _ = grids[s].query((prest[others] - orr[s]) @ Rr[s])
+        close = others[d < rest_clearance]
+        exclude[close] |= np.uint64(1) << np.uint64(s)
+    return SelfContactModel(
+        point_tet=ptet, point_bary=pbary, point_rest=prest, point_area=area, point_segment=pseg,
+        point_exclude=exclude, seg_points=order, seg_start=seg_start, seg_body=segb, seg_rest_R=Rr,
+        seg_rest_o=orr, seg_lo=lo, seg_hi=hi, seg_centre=centre, seg_radius=radius, pair_ok=pair_ok,
+        grid_values=np.concatenate(values), grid_nearest=np.concatenate(nearest),
+        grid_adr=np.array(adr, np.int64), grid_origin=np.array(origin), grid_voxel=np.array(vox),
+        grid_dims=np.array(dims, np.int32), kn=float(kn), kf=float(kf), mu=float(mu),
+        margin=float(margin), build_s=time.perf_counter() - t0)
+
+
+@njit(cache=True)
+def _field(values, adr, origin, voxel, dims, s, p):
+    return sdf.grid_value(values[adr[s, 0]:adr[s, 1]], origin[s], voxel[s], dims[s], p[0], p[1], p[2])
+
+
+@njit(cache=True)
+def _project(values, adr, origin, voxel, dims, s, p, out, nrm):
+    """Closest rest surface point of segment s (bone frame) into out, unit normal there into nrm."""
+    vs = values[adr[s, 0]:adr[s, 1]]
+    for i in range(3):
+        out[i] = p[i]
+    for _ in range(2):  # second step: curved surfaces
+        d, gx, gy, gz = sdf.grid_lookup(vs, origin[s], voxel[s], dims[s], out[0], out[1], out[2])
+        gl = np.sqrt(gx * gx + gy * gy + gz * gz)
+        if gl == 0.0:
+            break
+        out[0] -= d * gx / gl
+        out[1] -= d * gy / gl
+        out[2] -= d * gz / gl
+    d, gx, gy, gz = sdf.grid_lookup(vs, origin[s], voxel[s], dims[s], out[0], out[1], out[2])
+    gl = np.sqrt(gx * gx + gy * gy + gz * gz)
+    if gl == 0.0:
+        nrm[0], nrm[1], nrm[2] = 0.0, 0.0, 1.0
+    else:
+        nrm[0], nrm[1], nrm[2] = gx / gl, gy / gl, gz / gl
+
+
+@njit(cache=True)
+def _nearest(nearest, adr, origin, voxel, dims, s, p):
+    i = min(max(int(np.floor((p[0] - origin[s, 0]) / voxel[s] + 0.5)), 0), dims[s, 0] - 1)
+    j = min(max(int(np.floor((p[1] - origin[s, 1]) / voxel[s] + 0.5)), 0), dims[s, 1] - 1)
+    k = min(max(int(np.floor((p[2] - origin[s, 2]) / voxel[s] + 0.5)), 0), dims[s, 2] - 1)
+    return nearest[adr[s, 0] + (i * dims[s, 1] + j) * dims[s, 2] + k]
+
+
+@njit(cache=True)
+def _anchor_from_local(a_local, n_local, s, seg_rest_R, seg_rest_o, point_rest, o_rest, n_rest,
+                       nearest, adr, origin, voxel, dims):
+    """From a bone-frame surface point and normal of segment s: the anchor vertex (returned) and
+    its rest-frame (world at rest) offset and normal."""
+    vb = _nearest(nearest, adr, origin, voxel, dims, s, a_local)
+    R = seg_rest_R[s]
+    for i in range(3):
+        a_rest = seg_rest_o[s, i] + R[i, 0] * a_local[0] + R[i, 1] * a_local[1] + R[i, 2] * a_local[2]
+        o_rest[i] = a_rest - point_rest[vb, i]
+        n_rest[i] = R[i, 0] * n_local[0] + R[i, 1] * n_local[1] + R[i, 2] * n_local[2]
+    return vb
+
+
+@njit(cache=True)
+def collide_kernel(node_x, body_x, body_q, body_com_local, v, tets, tet_q,
+                   point_tet, point_bary, point_rest, point_area, point_segment, point_exclude,
+                   seg_points, seg_start, seg_body, seg_rest_R, seg_rest_o, seg_lo, seg_hi,
+                   seg_centre, seg_radius, pair_ok, grid_values, grid_nearest, grid_adr, grid_origin,
+                   grid_voxel, grid_dims, kn, kf, mu, margin, active, xp,
+                   prev_count, prev_point, prev_seg, prev_vb, prev_orest, prev_nrest,
+                   c_point, c_seg, c_vb, c_orest, c_nrest,
+                   c_ptet, c_pbary, c_atet, c_abary, c_offset, c_normal, c_area, c_slip):
+    """One detection pass from the previous list (prev_*) into the new one (c_*); returns
+    (count, dropped, candidates tested)."""
+    P = point_tet.shape[0]
+    S = seg_body.shape[0]
+    for p in range(P):
+        t = point_tet[p]
+        for i in range(3):
+            acc = 0.0
+            for a in range(4):
+                acc += point_bary[p, a] * node_x[tets[t, a], i]
+            xp[p, i] = acc
+    R = np.empty((S, 3, 3))
+    org = np.empty((S, 3))
+    cw = np.empty((S, 3))
+    for s in range(S):
+        b = seg_body[s]
+        R[s] = quat_to_matrix(body_q[b])
+        org[s] = body_x[b] - R[s] @ body_com_local[b]
+        cw[s] = org[s] + R[s] @ seg_centre[s]
+    capacity = c_point.shape[0]
+    count = 0
+    dropped = 0
+    tested = 0
+    o = np.empty(3)
+    n = np.empty(3)
+    D = np.empty(3)
+    a_local = np.empty(3)
+    n_local = np.empty(3)
+    local = np.empty(3)
+    o_rest = np.empty(3)
+    n_rest = np.empty(3)
+    # ---- kept contacts: release, Coulomb update
+    for k in range(prev_count):
+        p, s, vb = prev_point[k], prev_seg[k], prev_vb[k]
+        o_rest[:] = prev_orest[k]
+        n_rest[:] = prev_nrest[k]
+        Rt = quat_to_matrix(tet_q[point_tet[vb]])
+        o[:] = Rt @ o_rest
+        n[:] = Rt @ n_rest
+        for i in range(3):
+            D[i] = xp[vb, i] + o[i] - xp[p, i]
+        dn = n[0] * D[0] + n[1] * D[1] + n[2] * D[2]
+        if dn <= 0.0 or dn > MAX_DEPTH or count >= capacity:
+            active[p, s] = 0
+            if dn > 0.0 and count >= capacity:
+                dropped += 1
+            continue
+        slip = STICK
+        t = D - dn * n
+        tl = np.sqrt(t[0] * t[0] + t[1] * t[1] + t[2] * t[2])
+        limit = mu * kn * dn / kf
+        if tl > limit * (1.0 + _CONE_SLACK):
+            slip = SLIP
+            sc = 1.0 - limit / tl
+            for i in range(3):
+                o[i] -= sc * t[i]
+            # back onto the surface (rest field of s) and a new anchor vertex there
+            for i in range(3):
+                o_rest[i] = Rt[0, i] * o[0] + Rt[1, i] * o[1] + Rt[2, i] * o[2]
+            Rr = seg_rest_R[s]
+            for i in range(3):
+                a = point_rest[vb, i] + o_rest[i] - seg_rest_o[s, i]
+                local[i] = a  # world-at-rest offset from the bone origin
+            for i in range(3):
+                a_local[i] = Rr[0, i] * local[0] + Rr[1, i] * local[1] + Rr[2, i] * local[2]
+            _project(grid_values, grid_adr, grid_origin, grid_voxel, grid_dims, s, a_local, a_local, n_local)
+            vb = _anchor_from_local(a_local, n_local, s, seg_rest_R, seg_rest_o, point_rest, o_rest,
+                                    n_rest, grid_nearest, grid_adr, grid_origin, grid_voxel, grid_dims)
+            Rt = quat_to_matrix(tet_q[point_tet[vb]])
+            o[:] = Rt @ o_rest
+            n[:] = Rt @ n_rest
+            for i in range(3):
+                D[i] = xp[vb, i] + o[i] - xp[p, i]
+            dn = n[0] * D[0] + n[1] * D[1] + n[2] * D[2]
+            if dn <= 0.0:
+                active[p, s] = 0
+                continue
+            t = D - dn * n
+            tl = np.sqrt(t[0] * t[0] + t[1] * t[1] + t[2] * t[2])
+            limit = mu * kn * dn / kf
+            if tl > limit:
+                sc = 1.0 - limit / tl
+                for i in range(3):
+                    o[i] -= sc * t[i]
+                    D[i] -= sc * t[i]
+            for i in range(3):
+                o_rest[i] = Rt[0, i] * o[0] + Rt[1, i] * o[1] + Rt[2, i] * o[2]
+            # sliding: the point moves away from its anchor relative to the anchor vertex
+            rel = 0.0
+            for i in range(3):
+                vr = 0.0
+                tp, ta = point_tet[p], point_tet[vb]
+                for a in range(4):
+                    vr += point_bary[p, a] * v[3 * tets[tp, a] + i] - point_bary[vb, a] * v[3 * tets[ta, a] + i]
+                rel -= vr * D[i]
+            if rel > 0.0:
+                slip = SLIDING
+        c = count
+        count += 1
+        c_point[c], c_seg[c], c_vb[c] = p, s, vb
+        c_orest[c] = o_rest
+        c_nrest[c] = n_rest
+        c_ptet[c] = point_tet[p]
+        c_pbary[c] = point_bary[p]
+        c_atet[c] = point_tet[vb]
+        c_abary[c] = point_bary[vb]
+        c_offset[c] = o
+        c_normal[c] = n
+        c_area[c] = point_area[p]
+        c_slip[c] = slip
+    # ---- new contacts: broad phase on segment spheres, narrow phase on the fields
+    for s in range(S):
+        for u in range(s + 1, S):
+            if pair_ok[s, u] == 0:
+                continue
+            dx = cw[s, 0] - cw[u, 0]
+            dy = cw[s, 1] - cw[u, 1]
+            dz = cw[s, 2] - cw[u, 2]
+            rr = seg_radius[s] + seg_radius[u] + margin
+            if dx * dx + dy * dy + dz * dz > rr * rr:
+                continue
+            for side in range(2):
+                A = s if side == 0 else u
+                B = u if side == 0 else s
+                bit = np.uint64(1) << np.uint64(B)
+                RB = R[B]
+                for q in range(seg_start[A], seg_start[A + 1]):
+                    p = seg_points[q]
+                    if active[p, B] != 0 or (point_exclude[p] & bit) != 0:
+                        continue
+                    for i in range(3):
+                        local[i] = (RB[0, i] * (xp[p, 0] - org[B, 0]) + RB[1, i] * (xp[p, 1] - org[B, 1])
+                                    + RB[2, i] * (xp[p, 2] - org[B, 2]))
+                    if (local[0] < seg_lo[B, 0] - margin or local[1] < seg_lo[B, 1] - margin
+                            or local[2] < seg_lo[B, 2] - margin or local[0] > seg_hi[B, 0] + margin
+                            or local[1] > seg_hi[B, 1] + margin or local[2] > seg_hi[B, 2] + margin):
+                        continue
+                    tested += 1
+                    d = _field(grid_values, grid_adr, grid_origin, grid_voxel, grid_dims, B, local)
+                    if d >= margin:
+                        continue
+                    _project(grid_values, grid_adr, grid_origin, grid_voxel, grid_dims, B, local, a_local, n_local)
+                    vb = _anchor_from_local(a_local, n_local, B, seg_rest_R, seg_rest_o, point_rest, o_rest,
+                                            n_rest, grid_nearest, grid_adr, grid_origin, grid_voxel, grid_dims)
+                    Rt = quat_to_matrix(tet_q[point_tet[vb]])
+                    o[:] = Rt @ o_rest
+                    n[:] = Rt @ n_rest
+                    dn = 0.0
+                    for i in range(3):
+                        D[i] = xp[vb, i] + o[i] - xp[p, i]
+                        dn += n[i] * D[i]
+                    if dn <= 0.0 or dn > MAX_DEPTH:  # outside the deformed skin, or through it
+                        continue
+                    if count >= capacity:
+                        dropped += 1
+                        continue
+                    # a new anchor sits on the surface along the normal: no friction yet
+                    for i in range(3):
+                        o[i] -= D[i] - dn * n[i]
+                    for i in range(3):
+                        o_rest[i] = Rt[0, i] * o[0] + Rt[1, i] * o[1] + Rt[2, i] * o[2]
+                    active[p, B] = 1
+                    c = count
+                    count += 1
+                    c_point[c], c_seg[c], c_vb[c] = p, B, vb
+                    c_orest[c] = o_rest
+                    c_nrest[c] = n_rest
+                    c_ptet[c] = point_tet[p]
+                    c_pbary[c] = point_bary[p]
+                    c_atet[c] = point_tet[vb]
+                    c_abary[c] = point_bary[vb]
+                    c_offset[c] = o
+                    c_normal[c] = n
+                    c_area[c] = point_area[p]
+                    c_slip[c] = STICK
+    return count, dropped, tested
+
+
+class SelfContactSystem:
+    """Self-contact state of one simulation and the calls the solver's step makes (the same
+    interface as contact/detection.ContactSystem): collide(...) the stage, add_all(state, model,
+    grad, values) the term, output(node_x) the contacts for /hand/contacts."""
+
+    def __init__(self, smodel: SelfContactModel, model, capacity=4096):
+        self.model = smodel
+        self.tets = model.tets
+        self.body_com_local = model.body_com_local
+        self.tet_slots = model.tet_slots
+        P, S = smodel.point_count, smodel.segment_count
+        self.active = np.zeros((P, S), np.uint8)
+        self._xp = np.zeros((P, 3))
+        C = int(capacity)
+        self._lists = [self._new_list(C), self._new_list(C)]
+        self.count = 0
+        self.dropped = 0
+        self.tested = 0
+        self.collision_ms = 0.0
+
+    @staticmethod
+    def _new_list(C):
+        return dict(point=np.zeros(C, np.int32), seg=np.zeros(C, np.int32), vb=np.zeros(C, np.int32),
+                    orest=np.zeros((C, 3)), nrest=np.zeros((C, 3)), ptet=np.zeros(C, np.int32),
+                    pbary=np.zeros((C, 4)), atet=np.zeros(C, np.int32), abary=np.zeros((C, 4)),
+                    offset=np.zeros((C, 3)), normal=np.zeros((C, 3)), area=np.zeros(C),
+                    slip=np.zeros(C, np.uint8))
+
+    @property
+    def list(self):
+        return self._lists[0]
+
+    def reset(self):
+        self.active[:] = 0
+        self.count = 0
+
+    def collide(self, node_x, body_x, body_q, v=None, body_dof0=None, tet_q=None):
+        """Detect, update anchors (stick/slip), build the active list; returns the count.
+        tet_q: the state's tet rotations (the anchors turn with their tet)."""
+        m = self.model
+        if v is None:
+            v = np.zeros(3 * node_x.shape[0])
+        t0 = time.perf_counter()
+        prev, new = self._lists
+        self.count, self.dropped, self.tested = collide_kernel(
+            node_x, body_x, body_q, self.body_com_local, v, self.tets, tet_q,
+            m.point_tet, m.point_bary, m.point_rest, m.point_area, m.point_segment, m.point_exclude,
+            m.seg_points, m.seg_start, m.seg_body, m.seg_rest_R, m.seg_rest_o, m.seg_lo, m.seg_hi,
+            m.seg_centre, m.seg_radius, m.pair_ok, m.grid_values, m.grid_nearest, m.grid_adr,
+            m.grid_origin, m.grid_voxel, m.grid_dims, m.kn, m.kf, m.mu, m.margin, self.active, self._xp,
+            self.count, prev["point"], prev["seg"], prev["vb"], prev["orest"], prev["nrest"],
+            new["point"], new["seg"], new["vb"], new["orest"], new["nrest"],
+            new["ptet"], new["pbary"], new["atet"], new["abary"], new["offset"], new["normal"],
+            new["area"], new["slip"])
+        self._lists = [new, prev]
+        self.collision_ms = 1e3 * (time.perf_counter() - t0)
+        return self.count
+
+    def _args(self):
+        L = self.list
+        return (self.tets, self.count, L["ptet"], L["pbary"], L["atet"], L["abary"], L["offset"],
+                L["normal"], L["area"], self.model.kn, self.model.kf)
+
+    def value(self, node_x):
+        return energy.value(node_x, *self._args())
+
+    def add_all(self, state, model, grad, values):
+        """Gradient and Hessian of the self contacts at state into grad / CSR values; returns [J]."""
+        e = energy.add_gradient(state.node_x, *self._args(), grad)
+        energy.add_hessian(state.node_x, *self._args(), self.list["slip"], self.tet_slots, values)
+        return e
+
+    def output(self, node_x, cap_friction=True):
+        """Per active contact: points (C,3) [m] (the point's side), normals (C,3) (from the
+        anchor's skin toward the point's), forces on the point's side (C,3) [N] = force_normal +
+        force_friction (the anchor's side feels the opposite), segment (C,) of the point and
+        other (C,) the touched segment (index into SelfContactModel segments; seg_body gives the
+        bone), slip (C,) u1, point (C,) skin point index, depth (C,) [m] of the point under the
+        deformed other skin."""
+        c = self.count
+        L = self.list
+        pts, fn, ff = (np.zeros((c, 3)) for _ in range(3))
+        energy.contact_forces(node_x, *self._args(), pts, fn, ff)
+        if cap_friction:
+            fn_len = np.linalg.norm(fn, axis=1)
+            ff_len = np.linalg.norm(ff, axis=1)
+            cap = self.model.mu * fn_len
+            ff *= np.where(ff_len > cap, cap / np.maximum(ff_len, 1e-300), 1.0)[:, None]
+        depth = np.linalg.norm(fn, axis=1) / np.maximum(self.model.kn * L["area"][:c], 1e-300)
+        return {"points": pts, "normals": L["normal"][:c].copy(), "forces": fn + ff,
+                "force_normal": fn, "force_friction": ff,
+                "segment": self.model.point_segment[L["point"][:c]].copy(), "other": L["seg"][:c].copy(),
+                "slip": (L["slip"][:c] > 0).astype(np.uint8), "point": L["point"][:c].copy(),
+                "depth": depth}
+
+
+def hand_segments(asset, body_offset=0):
+    """(point_segment (V,), segment_body (16,), adjacent pairs) of one hand asset: each skin
+    vertex in the segment of its nearest bone axis (handmodel.rigid_skin), segments = bones (at
+    model bodies body_offset + bone), adjacency = the skeleton's joints."""
+    from softhand_sim.handmodel.rigid_skin import RigidSkin
+    nb = len(asset.bone_rest_pose)
+    seg = RigidSkin(asset).bone_of.astype(np.int32)
+    adjacent = list(zip(np.asarray(asset.joint_parent).tolist(), np.asarray(asset.joint_child).tolist()))
+    return seg, np.arange(nb, dtype=np.int32) + body_offset, adjacent
+
+
+def build_self_contact_system(model, asset, kn=None, kf=None, mu=None, capacity=None, **kwargs):
+    """The SelfContactSystem of one hand (model built from asset), for
+    Solver(model, self_contacts=...). kn, kf default to the model's self_contact_kn / self_contact_kf, mu to
+    its self_contact_friction, capacity to self_contact_capacity; kwargs go to
+    build_self_contact_model (rest_clearance, voxel, margin).
+
+    Two hands: the same build with both hands' skin points (their tets in the one model),
+    triangles (the second hand's offset by the first's point count), segments (the second
+    hand's offset by 16, bodies by its first bone) and both skeletons' adjacency."""
+    p = model.params
+    seg, segb, adjacent = hand_segments(asset)
+    kn = float(p["self_contact_kn"]) if kn is None else kn
+    kf = float(p["self_contact_kf"]) if kf is None else kf
+    mu = float(p["self_contact_friction"]) if mu is None else mu
+    capacity = int(p["self_contact_capacity"]) if capacity is None else capacity
+    kwargs.setdefault("rest_clearance", float(p["self_contact_rest_clearance"]))
+    kwargs.setdefault("margin", float(p["self_contact_margin"]))
+    sm = build_self_contact_model(model, model.skin_tet, model.skin_bary, asset.skin_triangles, seg, segb,
+                                  adjacent, kn, kf, mu, **kwargs)
+    return SelfContactSystem(sm, model, capacity)

@@ -1,0 +1,159 @@
+"""Skin-skin (self) contact energy: Eq. 12 (normal) and Eq. 13 (friction) between two soft skins.
+
+Each active contact joins a skin point x_p of one segment (its 4 tissue nodes, barycentric
+weights beta) to an anchor on the skin of another segment: a skin vertex of that segment, x_v
+(4 nodes of its own tet, weights gamma), plus a short offset o (< one skin edge; world frame):
+
+    D = x_v + o - x_p,   U = 1/2 w D^T K D,   K = k_n n n^T + k_f (I - n n^T)      [J]
+
+so both skins carry the force (equal and opposite: f = w K D pushes the point toward the anchor
+and the anchor's vertex back). The normal n (world) and offset o are frozen for the step: the
+collide stage (contact/self_contact.py) refreshes them from the anchor tet's rotation, as
+energies/contact.py freezes a static object's frame. w [m^2] is the point's skin area (half of
+it: every pair of segments is tested both ways), k_n, k_f [N/m^3].
+
+Gradient (exact for the frozen n, o): dU/dx_node(point) = -beta_a f,  dU/dx_node(anchor) = +gamma_a f.
+
+Hessian (stated choice): the Gauss-Newton J^T (w K) J couples the point's tet to the anchor's
+tet, two tets of different fingers that the model's fixed sparsity pattern does not couple. We
+use instead its block-diagonal majorizer
+    2 w (beta beta^T (x) K)  on the point's tet,   2 w (gamma gamma^T (x) K)  on the anchor's tet,
+which lives inside the tets' own stencils (model.tet_slots). (a+b)^T K (a+b) <= 2 a^T K a +
+2 b^T K b for PSD K, so it bounds J^T w K J from above: symmetric PSD, exact for the two sides
+pressed against each other (the relative mode), over-stiff for both moving together (the common
+mode only converges slower; the gradient, hence the equilibrium, is exact). When both sides lie
+in the same tet, the exact J^T w K J (weights gamma - beta). A SLIDING contact (slip == 2) gets
+no stiffness along its friction force, as energies/contact.py.
+
+Arrays of the active list (first `count` rows):
+    p_tet (C,) i4, p_bary (C,4)    the point's tet and weights
+    a_tet (C,) i4, a_bary (C,4)    the anchor vertex's tet and weights
+    offset (C,3) [m], normal (C,3), area (C,) [m^2], slip (C,) u1
+"""
+import numpy as np
+from numba import njit
+
+
+@njit(cache=True)
+def _frame(c, x, tets, p_tet, p_bary, a_tet, a_bary, offset):
+    """D = x_v + o - x_p (3,) [m] of contact c."""
+    D = np.empty(3)
+    tp, ta = p_tet[c], a_tet[c]
+    for i in range(3):
+        acc = offset[c, i]
+        for a in range(4):
+            acc += a_bary[c, a] * x[tets[ta, a], i] - p_bary[c, a] * x[tets[tp, a], i]
+        D[i] = acc
+    return D
+
+
+@njit(cache=True)
+def _force(D, n, w, kn, kf):
+    """f = w K D (3,) [N] and its normal part dn = n . D [m]."""
+    dn = n[0] * D[0] + n[1] * D[1] + n[2] * D[2]
+    f = np.empty(3)
+    for i in range(3):
+        f[i] = w * (kf * D[i] + (kn - kf) * dn * n[i])
+    return f, dn
+
+
+@njit(cache=True)
+def value(x, tets, count, p_tet, p_bary, a_tet, a_bary, offset, normal, area, kn, kf):
+    """Sum of Eq. 12 + 13 over the active self contacts [J]."""
+    e = 0.0
+    for c in range(count):
+        D = _frame(c, x, tets, p_tet, p_bary, a_tet, a_bary, offset)
+        f, dn = _force(D, normal[c], area[c], kn, kf)
+        e += 0.5 * (f[0] * D[0] + f[1] * D[1] + f[2] * D[2])
+    return e
+
+
+@njit(cache=True)
+def add_gradient(x, tets, count, p_tet, p_bary, a_tet, a_bary, offset, normal, area, kn, kf, grad):
+    """Adds dU/dx into grad (node n at 3n..3n+2); returns U [J]."""
+    e = 0.0
+    for c in range(count):
+        D = _frame(c, x, tets, p_tet, p_bary, a_tet, a_bary, offset)
+        f, dn = _force(D, normal[c], area[c], kn, kf)
+        e += 0.5 * (f[0] * D[0] + f[1] * D[1] + f[2] * D[2])
+        tp, ta = p_tet[c], a_tet[c]
+        for a in range(4):
+            npn, nan = 3 * tets[tp, a], 3 * tets[ta, a]
+            for i in range(3):
+                grad[npn + i] -= p_bary[c, a] * f[i]
+                grad[nan + i] += a_bary[c, a] * f[i]
+    return e
+
+
+@njit(cache=True)
+def _stiffness(c, x, tets, p_tet, p_bary, a_tet, a_bary, offset, normal, area, kn, kf, slip, K):
+    """w K (3,3) [N/m] of contact c into K; a SLIDING contact loses k_f along its friction force."""
+    n = normal[c]
+    w = area[c]
+    for i in range(3):
+        for j in range(3):
+            K[i, j] = w * ((kn - kf) * n[i] * n[j] + (kf if i == j else 0.0))
+    if slip[c] == 2:
+        D = _frame(c, x, tets, p_tet, p_bary, a_tet, a_bary, offset)
+        dn = n[0] * D[0] + n[1] * D[1] + n[2] * D[2]
+        t0, t1, t2 = D[0] - dn * n[0], D[1] - dn * n[1], D[2] - dn * n[2]
+        tl2 = t0 * t0 + t1 * t1 + t2 * t2
+        if tl2 > 0.0:
+            t = (t0, t1, t2)
+            for i in range(3):
+                for j in range(3):
+                    K[i, j] -= w * kf * t[i] * t[j] / tl2
+
+
+@njit(cache=True)
+def _scatter(tet_slots, t, wa, wb, K, scale, values):
+    """values[block (a, b) of tet t] += scale wa_a wb_b K."""
+    for a in range(4):
+        if wa[a] == 0.0:
+            continue
+        for b in range(4):
+            s = scale * wa[a] * wb[b]
+            if s == 0.0:
+                continue
+            for i in range(3):
+                for j in range(3):
+                    values[np.uint64(tet_slots[t, 3 * a + i, 3 * b + j])] += s * K[i, j]
+
+
+@njit(cache=True)
+def add_hessian(x, tets, count, p_tet, p_bary, a_tet, a_bary, offset, normal, area, kn, kf, slip,
+                tet_slots, values):
+    """Adds the block-diagonal majorizer of the Gauss-Newton Hessian (module docstring) into the
+    CSR values through the tets' stencils tet_slots (T,12,12)."""
+    K = np.empty((3, 3))
+    cw = np.empty(4)
+    for c in range(count):
+        _stiffness(c, x, tets, p_tet, p_bary, a_tet, a_bary, offset, normal, area, kn, kf, slip, K)
+        tp, ta = p_tet[c], a_tet[c]
+        if tp == ta:  # one tet: the exact J^T w K J with weights gamma - beta
+            for a in range(4):
+                cw[a] = a_bary[c, a] - p_bary[c, a]
+            _scatter(tet_slots, tp, cw, cw, K, 1.0, values)
+        else:
+            _scatter(tet_slots, tp, p_bary[c], p_bary[c], K, 2.0, values)
+            _scatter(tet_slots, ta, a_bary[c], a_bary[c], K, 2.0, values)
+
+
+@njit(cache=True)
+def contact_forces(x, tets, count, p_tet, p_bary, a_tet, a_bary, offset, normal, area, kn, kf,
+                   out_point, out_force_n, out_force_f):
+    """Per contact: the skin point (world) [m], normal and friction force on the point's side [N]
+    (the anchor's side feels the opposite)."""
+    for c in range(count):
+        D = _frame(c, x, tets, p_tet, p_bary, a_tet, a_bary, offset)
+        n = normal[c]
+        w = area[c]
+        dn = n[0] * D[0] + n[1] * D[1] + n[2] * D[2]
+        tp = p_tet[c]
+        for i in range(3):
+            acc = 0.0
+            for a in range(4):
+                acc += p_bary[c, a] * x[tets[tp, a], i]
+            out_point[c, i] = acc
+            out_force_n[c, i] = w * kn * dn * n[i]
+            out_force_f[c, i] = w * kf * (D[i] - dn * n[i])

@@ -1,0 +1,201 @@
+"""Scripted self-contact scenarios on the hand model (issue #21): a thumb-index pinch of the pads
+pressed 5 mm beyond contact and a tight fist (the fingers curl 1 cm beyond touching the palm).
+
+Poses are found on the kinematic hand (handmodel.kinematics.forward_kinematics) with each skin
+point carried rigidly by its segment's bone and measured against the other segment's rest field
+(the SelfContactModel's grids): `rigid_overlap` is how deep [m] the skin of one group of segments
+would sink into another if nothing gave. `press` finds, along a one-parameter closing motion, the
+parameter where that overlap first reaches a depth (0 = touching). The soft hand is then driven
+there through its bone targets (Control.set_bone_targets) and held.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from softhand_sim.handmodel.kinematics import DIGIT_LIMITS, forward_kinematics
+from softhand_sim.physics.contact import sdf
+from softhand_sim.physics.rotations import quat_to_matrix
+from softhand_sim.scenarios.contact import pinch_angles, smoothstep
+
+THUMB_DISTAL, INDEX_DISTAL, PALM = 3, 6, 0
+FINGER_SEGMENTS = tuple(range(4, 16))   # index .. little, all three phalanxes
+PINCH_PRESS = 0.005   # [m] pads pressed beyond touching (rigid overlap)
+FIST_PRESS = 0.010    # [m] fingers curled beyond touching the palm
+
+
+def rigid_overlap(smodel, bone_poses, points_from, into):
+    """Deepest [m] rigid overlap of the skin points of segments `points_from` inside the rest
+    field of any segment in `into` (positive: inside; negative: the smallest gap) with the bones
+    at bone_poses (16,7), each point carried rigidly by its own bone."""
+    R = np.array([quat_to_matrix(q) for q in bone_poses[:, 3:]])
+    deepest = -np.inf
+    for s in points_from:
+        own = np.flatnonzero(smodel.point_segment == s)
+        local = (smodel.point_rest[own] - smodel.seg_rest_o[s]) @ smodel.seg_rest_R[s]
+        world = local @ R[s].T + bone_poses[s, :3]
+        for t in into:
+            if t == s or not smodel.pair_ok[s, t]:
+                continue
+            a0, a1 = smodel.grid_adr[t]
+            g = sdf.DistanceGrid(smodel.grid_origin[t], smodel.grid_voxel[t], smodel.grid_dims[t],
+                                 smodel.grid_values[a0:a1])
+            d, _ = g.query((world - bone_poses[t, :3]) @ R[t])
+            deepest = max(deepest, float(-d.min()))
+    return deepest
+
+
+def press(smodel, palm_pose, angles_of, points_from, into, depth, lo=0.0, hi=1.0, iters=30):
+    """The parameter u in [lo, hi] where rigid_overlap of angles_of(u) reaches depth [m]
+    (bisection; the overlap grows with u). Returns hi when it never does."""
+    def overlap(u):
+        return rigid_overlap(smodel, forward_kinematics(palm_pose, angles_of(u))[1], points_from, into)
+    if overlap(hi) < depth:
+        return hi
+    for _ in range(iters):
+        mid = 0.5 * (lo + hi)
+        if overlap(mid) < depth:
+            lo = mid
+        else:
+            hi = mid
+    return 0.5 * (lo + hi)
+
+
+def pad_centre(smodel, segment, bone_pose):
+    """World centre [m] of a distal segment's pad (its palmar, -z, skin in the distal half) with
+    the bone at bone_pose (7,)."""
+    own = np.flatnonzero(smodel.point_segment == segment)
+    local = (smodel.point_rest[own] - smodel.seg_rest_o[segment]) @ smodel.seg_rest_R[segment]
+    pad = local[(local[:, 2] < local[:, 2].min() + 0.003) & (local[:, 0] > np.median(local[:, 0]))]
+    return bone_pose[:3] + quat_to_matrix(bone_pose[3:]) @ pad.mean(axis=0)
+
+
+def pads_meeting_angles(smodel, palm_pose):
+    """Thumb and index angles (5, 4) [rad] (others straight) that bring the two distal pads'
+    centres together: a bounded least-squares search from the ball pinch's touch pose
+    (contact.pinch_angles), penalising every other pair of the two digits' segments overlapping."""
+    from scipy.optimize import minimize
+    _, touch, _ = pinch_angles()
+    lo, hi = DIGIT_LIMITS[:2, :, 0].ravel(), DIGIT_LIMITS[:2, :, 1].ravel()
+
+    def angles(z):
+        a = np.zeros((5, 4))
+        a[:2] = z.reshape(2, 4)
+        return a
+
+    def cost(z):
+        bones = forward_kinematics(palm_pose, angles(z))[1]
+        d = pad_centre(smodel, THUMB_DISTAL, bones[THUMB_DISTAL]) - pad_centre(smodel, INDEX_DISTAL, bones[INDEX_DISTAL])
+        return float(d @ d)
+    z = minimize(cost, touch[:2].ravel(), bounds=list(zip(lo, hi)), method="L-BFGS-B").x
+    return angles(z)
+
+
+class PadPinch:
+    """Thumb and index pads pressed together (no object): from the open pre-shape of the ball
+    pinch (contact.pinch_angles) toward the pose whose pad centres meet (pads_meeting_angles),
+    angles = open + u (meet - open), stopped where the distal pads' rigid overlap reaches
+    `depth` [m] (PINCH_PRESS: 5 mm beyond touching). The script closes over T_CLOSE [s] and holds."""
+
+    T_CLOSE = 0.5
+
+    def __init__(self, asset, smodel, depth=PINCH_PRESS):
+        self.palm = np.asarray(asset.bone_rest_pose[0], dtype=np.float64)
+        self.opened = pinch_angles()[0]
+        meet = pads_meeting_angles(smodel, self.palm)
+
+        def angles(u):
+            return self.opened + u * (meet - self.opened)
+        self.angles_of = angles
+        pads, into = (THUMB_DISTAL,), (INDEX_DISTAL,)
+        self.u_touch = press(smodel, self.palm, angles, pads, into, 0.0)
+        self.u_press = press(smodel, self.palm, angles, pads, into, depth)
+        self.pressed = angles(self.u_press)
+        self.overlap = rigid_overlap(smodel, forward_kinematics(self.palm, self.pressed)[1], pads, into)
+
+    def digit_angles(self, t):
+        return self.opened + smoothstep(t / self.T_CLOSE) * (self.pressed - self.opened)
+
+    def bone_targets(self, t):
+        return forward_kinematics(self.palm, self.digit_angles(t))[1]
+
+
+class Fist:
+    """The four fingers curl together (every flexion of index..little at u times its upper
+    limit, thumb straight) until they touch the palm (u_touch ~ 0.98), then the knuckles (MCP
+    flexion of the four fingers) turn on by `extra` [rad] until the fingers' rigid overlap with
+    the palm reaches `depth` [m] (FIST_PRESS): 1 cm beyond touching. Those targets lie beyond the
+    knuckles' DIGIT_LIMITS (the tracked hand may ask that; the joint-limit penalty and the
+    contact resist). Closes over T_CLOSE [s] and holds."""
+
+    T_CLOSE = 0.6
+
+    def __init__(self, asset, smodel, depth=FIST_PRESS):
+        self.palm = np.asarray(asset.bone_rest_pose[0], dtype=np.float64)
+        hi = DIGIT_LIMITS[:, :, 1]
+
+        def curl(u):
+            a = np.zeros((5, 4))
+            a[1:, 1:] = u * hi[1:, 1:]
+            return a
+        self.u_touch = press(smodel, self.palm, curl, FINGER_SEGMENTS, (PALM,), 0.0)
+        touch = curl(self.u_touch)
+
+        def angles(extra):
+            a = touch.copy()
+            a[1:, 1] += extra
+            return a
+        self.angles_of = angles
+        self.u_press = press(smodel, self.palm, angles, FINGER_SEGMENTS, (PALM,), depth, 0.0, 1.0)
+        self.pressed = angles(self.u_press)
+        self.overlap = rigid_overlap(smodel, forward_kinematics(self.palm, self.pressed)[1],
+                                     FINGER_SEGMENTS, (PALM,))
+
+    def digit_angles(self, t):
+        return smoothstep(t / self.T_CLOSE) * self.pressed
+
+    def bone_targets(self, t):
+        return forward_kinematics(self.palm, self.digit_angles(t))[1]
+
+
+def run(solver, state, control, script, seconds, dt=1.0 / 60.0, on_step=None):
+    """Drives the solver with script.bone_targets for `seconds`; returns the last StepStats and
+    the largest self-contact force seen [N] (sum over contacts of |f|)."""
+    model = solver.model
+    steps = int(round(seconds / dt))
+    stats = None
+    for k in range(steps):
+        control.set_bone_targets(model, script.bone_targets(k * dt))
+        stats = solver.step(state, control, dt)
+        if on_step is not None:
+            on_step(k, stats)
+    return stats
+
+
+def skin_penetration(smodel, node_x, tets, triangles, within=0.003):
+    """Deepest [m] skin point inside the deformed skin of another segment it may touch, measured
+    without the contact list: for every allowed (point, segment) pair whose nearest skin vertex of
+    that segment (current positions) is within `within` [m], the depth below that vertex's tangent
+    plane ((x_v - x_p) . n_v, n_v the deformed skin's outward vertex normal). Returns
+    (depth, point, segment) of the deepest."""
+    from scipy.spatial import cKDTree
+    from softhand_sim.handmodel.rigid_skin import vertex_normals
+    x = np.einsum("pa,pai->pi", smodel.point_bary, node_x[tets[smodel.point_tet]])
+    normals = vertex_normals(x, triangles)
+    best = (-np.inf, -1, -1)
+    S = smodel.segment_count
+    for t in range(S):
+        own = np.flatnonzero(smodel.point_segment == t)
+        tree = cKDTree(x[own])
+        others = np.flatnonzero((smodel.pair_ok[smodel.point_segment, t] == 1)
+                                & ((smodel.point_exclude >> np.uint64(t)) & np.uint64(1) == 0))
+        dist, idx = tree.query(x[others], distance_upper_bound=within)
+        hit = np.isfinite(dist)
+        if not hit.any():
+            continue
+        v = own[idx[hit]]
+        p = others[hit]
+        depth = np.einsum("ij,ij->i", x[v] - x[p], normals[v])
+        k = int(np.argmax(depth))
+        if depth[k] > best[0]:
+            best = (float(depth[k]), int(p[k]), t)
+    return best

