@@ -10,7 +10,8 @@ solver's sparsity pattern stay those of the default hand:
   by the finger's width ratio (S), into its fitted frame (o1, R1);
 * the palm (with the thenar pad) maps by a thin-plate spline in the palm plane through the
   landmarks that place the default and fitted palm outlines (wrist, knuckles, palm polygon
-  corners, thumb CMC and MCP, thenar root: shape.py), and affinely across it (palm thickness);
+  corners, thumb CMC and MCP, thenar root: shape.py), which also gives a height offset, and
+  across the palm z scales with the palm thickness;
 * the maps are blended by smooth weights from the signed distance of the point to each part of
   the default hand (palm slab + thenar pad; each bone's segment less the finger's half width):
   a soft minimum, palm against digits over PALM_BLEND, one finger against the others over
@@ -21,7 +22,8 @@ solver's sparsity pattern stay those of the default hand:
 Then what depends on geometry is recomputed from the morphed points: the skeleton (frames,
 capsules, masses, joint anchors) from the fitted measures exactly as build.py does, skin and
 sample barycentric weights in their (kept) tets, samples' bone-frame coordinates, the skin's
-distance to its tet. Rest shapes and lumped masses are computed by physics.model from the tets.
+distance to its tet (a vertex carried past the embedding tolerance is bound to the tet embedding.py
+picks for it). Rest shapes and lumped masses are computed by physics.model from the tets.
 The left hand is the morphed right hand mirrored, as build.py makes it.
 
 The result must still pass checks.morph_problems (cache.py falls back to a full build if not).
@@ -36,11 +38,12 @@ from numba import njit
 from softhand_sim.handmodel.asset import HandAsset
 from softhand_sim.handmodel.build import MIRROR, SIDES
 from softhand_sim.handmodel.checks import tet_figures
-from softhand_sim.handmodel.embedding import _closest_on_triangle, barycentric
+from softhand_sim.handmodel.embedding import _closest_on_triangle, barycentric, embed_points
 from softhand_sim.handmodel.measures import HandMeasures, as_measures
 from softhand_sim.handmodel.shape import HandShape, _polygon2d, _round_cone
 from softhand_sim.handmodel.skeleton import FINGER_BONES, bone_chain_points, palm_centre_z, skeleton_from_frames
 from softhand_sim.handmodel.skin import signed_volume
+from softhand_sim.handmodel.tissue import COARSE_EMBED_TOLERANCE
 from softhand_sim.handmodel.tets import boundary_triangles, dihedral_angles, tet_volumes
 
 MORPH_VERSION = "1"  # bump when the morph's output changes (part of the cache key)
@@ -52,18 +55,19 @@ JOINT_BLEND = 0.002  # [m] soft-min width between the bones of one finger, acros
 QUALITY_TARGET_DEG = 12.0  # [deg] (checks: >= 10; the default coarse hand's least angle is 12.7)
 QUALITY_MAX_MOVE = 0.002  # [m]
 QUALITY_ROUNDS = 40
-INSIDE_TOLERANCE = 1e-9  # smallest barycentric weight still counted as inside (embedding.py)
+INSIDE_TOLERANCE = 1e-9
+REEMBED_DISTANCE = COARSE_EMBED_TOLERANCE  # [m] skin vertices farther from their tet are embedded anew  # smallest barycentric weight still counted as inside (embedding.py)
 
 
 # ------------------------------------------------------------------------------ the palm map
 def palm_landmarks(m: HandMeasures) -> np.ndarray:
-    """(k, 2) points [m] of the palm plane that place the palm outline of `m` (shape.py): the
-    wrist, the four knuckles (MCP), the palm polygon's corners, the thumb CMC and MCP and the
+    """(k, 3) points [m] that place the palm of `m` (shape.py): the wrist, the four knuckles
+    (MCP), the thumb CMC and MCP, the palm polygon's corners (on the palm's mid plane) and the
     thenar pad's root. The same list, point for point, for any measures."""
     shape = HandShape(m)
     prox, _, _ = bone_chain_points(m)
-    pts = [np.zeros(2)] + [prox[b, :2] for b in (4, 7, 10, 13, 1, 2)]
-    pts += list(shape.poly) + [shape.thenar[:2]]
+    pts = [np.zeros(3)] + [prox[b] for b in (4, 7, 10, 13, 1, 2)]
+    pts += [np.array([x, y, shape.palm_z]) for x, y in shape.poly] + [shape.thenar[:3]]
     return np.array(pts, dtype=np.float64)
 
 
@@ -72,30 +76,36 @@ def _tps_kernel(r2):
 
 
 class PalmMap:
-    """Thin-plate spline (palm plane) + affine (thickness) map of palm points src -> dst [m]."""
+    """Map of palm points src -> dst [m]: a thin-plate spline in the palm plane gives x', y' and a
+    height offset; across the palm, z scales about the palm's mid plane with its thickness. The
+    landmarks (palm_landmarks) land exactly where `dst` has them, the thumb CMC and MCP in height too."""
 
     def __init__(self, src: HandMeasures, dst: HandMeasures):
         a, b = palm_landmarks(src), palm_landmarks(dst)
+        self.z_src, self.z_dst = palm_centre_z(src), palm_centre_z(dst)
+        self.z_ratio = dst.palm_thickness / src.palm_thickness
         self.scale = src.palm_length  # [m] coordinates in palm lengths: a well-conditioned system
-        self.centres = a / self.scale
+        self.centres = a[:, :2] / self.scale
         n = len(a)
         k = _tps_kernel(((self.centres[:, None] - self.centres[None]) ** 2).sum(-1))
         p = np.column_stack([np.ones(n), self.centres])
         lhs = np.zeros((n + 3, n + 3))
         lhs[:n, :n], lhs[:n, n:], lhs[n:, :n] = k, p, p.T
-        rhs = np.zeros((n + 3, 2))
-        rhs[:n] = b / self.scale
-        self.coef = np.linalg.solve(lhs, rhs)
-        self.z_src, self.z_dst = palm_centre_z(src), palm_centre_z(dst)
-        self.z_ratio = dst.palm_thickness / src.palm_thickness
+        rhs = np.zeros((n + 3, 3))
+        rhs[:n, :2] = b[:, :2]
+        rhs[:n, 2] = b[:, 2] - self._z(a[:, 2])
+        self.coef = np.linalg.solve(lhs, rhs / self.scale)
+
+    def _z(self, z):
+        return self.z_dst + (z - self.z_src) * self.z_ratio
 
     def __call__(self, points):
         q = points[:, :2] / self.scale
         n = len(self.centres)
         k = _tps_kernel(((q[:, None] - self.centres[None]) ** 2).sum(-1))
-        xy = (k @ self.coef[:n] + self.coef[n] + q @ self.coef[n + 1:]) * self.scale
-        z = self.z_dst + (points[:, 2] - self.z_src) * self.z_ratio
-        return np.column_stack([xy, z])
+        out = (k @ self.coef[:n] + self.coef[n] + q @ self.coef[n + 1:]) * self.scale
+        out[:, 2] += self._z(points[:, 2])
+        return out
 
 
 # ------------------------------------------------------------------------------ the finger maps
@@ -288,6 +298,11 @@ def morph_hand(base: HandAsset, measures, side="right") -> HandAsset:
     skin_bary = barycentric(nodes, tets, skin_tet, skin)
     skin_dist = np.empty(len(skin))
     _distance_to_tets(skin, nodes[tets[skin_tet]], skin_bary, skin_dist)
+    # a vertex the stretch carried past the tolerance from its tet's flat face: bind it anew
+    far = np.flatnonzero(skin_dist > REEMBED_DISTANCE)
+    if len(far):
+        skin_tet = skin_tet.copy()
+        skin_tet[far], skin_bary[far], skin_dist[far] = embed_points(nodes, tets, skin[far])
     sample_tet, sample_bone = np.asarray(base.sample_tet), np.asarray(base.sample_bone)
     sample_bary = barycentric(nodes, tets, sample_tet, samples)
     sample_local = np.einsum("pij,pi->pj", rot[sample_bone], samples - prox[sample_bone])
@@ -304,7 +319,7 @@ def morph_hand(base: HandAsset, measures, side="right") -> HandAsset:
         "resolution"), tet_count=tf["tets"], inverted=tf["inverted"], min_dihedral_deg=tf["min_dihedral_deg"],
         volume_error=tf["volume_error"], skin_triangle_count=int(len(faces)), skin_vertex_count=int(len(skin)),
         skin_volume=float(skin_volume), max_skin_embed_distance=float(skin_dist.max()),
-        nodes_nudged=int((nudged > 0).sum()), max_nudge_mm=round(float(nudged.max()) * 1e3, 3),
+        skin_reembedded=int(len(far)), nodes_nudged=int((nudged > 0).sum()), max_nudge_mm=round(float(nudged.max()) * 1e3, 3),
         time_total_s=time.perf_counter() - t0)
     return HandAsset(
         side=side, skin_vertices=skin, skin_triangles=faces.astype(np.int32), tet_nodes=nodes,
