@@ -13,7 +13,7 @@ from softhand_sim.handmodel.fit import fit_measures, hand_length
 from softhand_sim.handmodel.measures import HandMeasures, scale_measures
 from softhand_sim.handmodel.morph import HandMorph, improve_tets, morph_hand
 from softhand_sim.handmodel.skeleton import bone_chain_points, build_skeleton, skeleton_from_frames
-from softhand_sim.handmodel.tets import dihedral_angles
+from softhand_sim.handmodel.tets import boundary_triangles, dihedral_angles
 from softhand_sim.handmodel.tissue import COARSE_EMBED_TOLERANCE
 from softhand_sim.physics.rotations import quat_to_matrix
 from softhand_sim.scenarios.tracker_bags import LARGE_HAND, SMALL_HAND
@@ -79,6 +79,8 @@ def test_left_is_the_mirrored_right(base):
     np.testing.assert_allclose(le.tet_nodes, r.tet_nodes @ MIRROR, atol=1e-12)
     np.testing.assert_allclose(le.skin_vertices, r.skin_vertices @ MIRROR, atol=1e-12)
     np.testing.assert_array_equal(le.tets, r.tets[:, [0, 2, 1, 3]])
+    surface = {tuple(np.roll(f, -np.argmin(f))) for f in le.tet_surface_triangles}
+    assert surface == {tuple(np.roll(f, -np.argmin(f))) for f in boundary_triangles(le.tets)}
     assert morph_problems(le, COARSE_EMBED_TOLERANCE) == []
     prox, dist, rot = bone_chain_points(SMALL_HAND)
     mirrored = skeleton_from_frames(SMALL_HAND, prox @ MIRROR, dist @ MIRROR, MIRROR @ rot @ MIRROR)

@@ -44,7 +44,7 @@ from softhand_sim.handmodel.shape import HandShape, _polygon2d, _round_cone
 from softhand_sim.handmodel.skeleton import FINGER_BONES, bone_chain_points, palm_centre_z, skeleton_from_frames
 from softhand_sim.handmodel.skin import signed_volume
 from softhand_sim.handmodel.tissue import COARSE_EMBED_TOLERANCE
-from softhand_sim.handmodel.tets import boundary_triangles, dihedral_angles, tet_volumes
+from softhand_sim.handmodel.tets import dihedral_angles
 
 MORPH_VERSION = "1"  # bump when the morph's output changes (part of the cache key)
 PALM_BLEND = 0.0025  # [m] soft-min width palm <-> digits
@@ -199,11 +199,25 @@ class HandMorph:
 
 
 # ------------------------------------------------------------------------------ tet quality
+@njit(cache=True)
 def _local_quality(x, tets):
-    """Least dihedral angle [deg] of `tets` at node positions x; -1000 if one is not positive."""
-    if (tet_volumes(x, tets) <= 0.0).any():
-        return -1000.0
-    return float(np.degrees(dihedral_angles(x, tets)).min())
+    """Least dihedral angle [deg] of `tets` at node positions x (tets.dihedral_angles, one tet at
+    a time: this runs thousands of times on a handful of tets); -1000 if a volume is not positive."""
+    faces = ((1, 2, 3), (0, 3, 2), (0, 1, 3), (0, 2, 1))
+    pairs = ((0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3))
+    best = 180.0
+    n = np.empty((4, 3))
+    for t in range(tets.shape[0]):
+        p = x[tets[t]]
+        if np.dot(p[1] - p[0], np.cross(p[2] - p[0], p[3] - p[0])) <= 0.0:
+            return -1000.0
+        for f in range(4):
+            a, b, c = faces[f]
+            v = np.cross(p[b] - p[a], p[c] - p[a])
+            n[f] = v / max(np.sqrt(np.dot(v, v)), 1e-30)
+        for i, j in pairs:
+            best = min(best, np.degrees(np.arccos(min(max(-np.dot(n[i], n[j]), -1.0), 1.0))))
+    return best
 
 
 def improve_tets(nodes, tets, target_deg=QUALITY_TARGET_DEG, max_move=QUALITY_MAX_MOVE, rounds=QUALITY_ROUNDS):
@@ -216,7 +230,7 @@ def improve_tets(nodes, tets, target_deg=QUALITY_TARGET_DEG, max_move=QUALITY_MA
     start = x.copy()
     order = np.argsort(tets.ravel(), kind="stable")
     bounds = np.searchsorted(tets.ravel()[order], np.arange(len(x) + 1))
-    incident = lambda v: tets[order[bounds[v]:bounds[v + 1]] // 4]  # noqa: E731
+    incident = lambda v: np.ascontiguousarray(tets[order[bounds[v]:bounds[v + 1]] // 4])  # noqa: E731
     eye = np.eye(3) * 1e-6
     for _ in range(rounds):
         q = np.degrees(dihedral_angles(x, tets)).min(axis=1)
@@ -307,9 +321,10 @@ def morph_hand(base: HandAsset, measures, side="right") -> HandAsset:
     sample_bary = barycentric(nodes, tets, sample_tet, samples)
     sample_local = np.einsum("pij,pi->pj", rot[sample_bone], samples - prox[sample_bone])
     faces = np.asarray(base.skin_triangles)
+    surface = np.asarray(base.tet_surface_triangles)  # same tets: same boundary
     if side == "left":  # as build.py: the right hand mirrored vertex for vertex
         skin, nodes, samples = skin @ MIRROR, nodes @ MIRROR, samples @ MIRROR
-        faces, tets = faces[:, [0, 2, 1]], tets[:, [0, 2, 1, 3]]
+        faces, tets, surface = faces[:, [0, 2, 1]], tets[:, [0, 2, 1, 3]], surface[:, [0, 2, 1]]
         skin_bary, sample_bary = skin_bary[:, [0, 2, 1, 3]], sample_bary[:, [0, 2, 1, 3]]
         skel = skeleton_from_frames(dst, prox @ MIRROR, dist @ MIRROR, MIRROR @ rot @ MIRROR)
         sample_local = sample_local @ MIRROR
@@ -323,7 +338,7 @@ def morph_hand(base: HandAsset, measures, side="right") -> HandAsset:
         time_total_s=time.perf_counter() - t0)
     return HandAsset(
         side=side, skin_vertices=skin, skin_triangles=faces.astype(np.int32), tet_nodes=nodes,
-        tets=tets.astype(np.int32), tet_surface_triangles=boundary_triangles(tets),
+        tets=tets.astype(np.int32), tet_surface_triangles=surface,
         skin_tet=skin_tet.astype(np.int32), skin_bary=skin_bary, skin_embed_distance=skin_dist,
         sample_tet=sample_tet.astype(np.int32), sample_bone=sample_bone.astype(np.int32),
         sample_count=np.asarray(base.sample_count, dtype=np.int32), sample_local=sample_local,
