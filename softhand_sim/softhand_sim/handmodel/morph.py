@@ -1,9 +1,9 @@
 """A hand at other measures in about a second: the default hand morphed per bone (issue #16).
 
 A full build (build.py) meshes the skin and the tissue anew: 40-160 s coarse, ~450 s fine. The
-morph instead carries every point of the default hand (skin vertices, tet nodes, bone-tissue
-samples) to the fitted skeleton, so the topology, the mesh quality (up to the stretch) and the
-solver's sparsity pattern stay those of the default hand:
+morph instead carries every skin vertex and tet node of the default hand to the fitted skeleton,
+so the topology (tets, skin triangles) and the mesh quality (up to the stretch) stay those of
+the default hand:
 
 * each finger bone b maps by the affine p' = R1 S R0^T (p - o0) + o1: out of its default frame
   (origin o0 at the proximal joint, R0), scaled along the bone by the length ratio and across it
@@ -17,14 +17,19 @@ solver's sparsity pattern stay those of the default hand:
   a soft minimum, palm against digits over PALM_BLEND, one finger against the others over
   FINGER_BLEND (fingers lie ~4 mm apart: no leak between them), and along a finger across each
   joint over JOINT_BLEND. Each map puts its joints exactly where the fitted skeleton has them,
-  so the blend is continuous and exact at the joints.
+  so the blend is continuous and exact at the joints;
+* where the stretch is largest (a thumb CMC moved 25 mm toward the wrist) a few tets lose their
+  angles: improve_tets nudges their nodes (at most QUALITY_MAX_MOVE) until they pass
+  QUALITY_TARGET_DEG.
 
-Then what depends on geometry is recomputed from the morphed points: the skeleton (frames,
-capsules, masses, joint anchors) from the fitted measures exactly as build.py does, skin and
-sample barycentric weights in their (kept) tets, samples' bone-frame coordinates, the skin's
-distance to its tet (a vertex carried past the embedding tolerance is bound to the tet embedding.py
-picks for it). Rest shapes and lumped masses are computed by physics.model from the tets.
-The left hand is the morphed right hand mirrored, as build.py makes it.
+Then what depends on geometry is recomputed: the skeleton (frames, capsules, masses, joint
+anchors) from the fitted measures exactly as build.py does, the skin's barycentric weights in
+its (kept) tets and its distance to them (a vertex carried past the embedding tolerance is bound
+to the tet embedding.py picks for it), and the bone-tissue samples, drawn anew on the fitted
+capsules (morph_hand's `samples`: carrying the default ones keeps the sparsity pattern but
+couples the palm to the thenar where the palm map bends). Rest shapes and lumped masses are
+computed by physics.model from the tets. The left hand is the morphed right hand mirrored, as
+build.py makes it.
 
 The result must still pass checks.morph_problems (cache.py falls back to a full build if not).
 """
@@ -40,13 +45,14 @@ from softhand_sim.handmodel.build import MIRROR, SIDES
 from softhand_sim.handmodel.checks import tet_figures
 from softhand_sim.handmodel.embedding import _closest_on_triangle, barycentric, embed_points
 from softhand_sim.handmodel.measures import HandMeasures, as_measures
+from softhand_sim.handmodel.samples import coupling_samples
 from softhand_sim.handmodel.shape import HandShape, _polygon2d, _round_cone
 from softhand_sim.handmodel.skeleton import FINGER_BONES, bone_chain_points, palm_centre_z, skeleton_from_frames
 from softhand_sim.handmodel.skin import signed_volume
 from softhand_sim.handmodel.tissue import COARSE_EMBED_TOLERANCE
 from softhand_sim.handmodel.tets import dihedral_angles
 
-MORPH_VERSION = "1"  # bump when the morph's output changes (part of the cache key)
+MORPH_VERSION = "2"  # bump when the morph's output changes (part of the cache key)
 PALM_BLEND = 0.0025  # [m] soft-min width palm <-> digits
 FINGER_BLEND = 0.0008  # [m] soft-min width between fingers (their skins lie ~4 mm apart)
 JOINT_BLEND = 0.002  # [m] soft-min width between the bones of one finger, across a joint
@@ -288,10 +294,19 @@ def _sample_world(asset):
     return np.einsum("pk,pki->pi", asset.sample_bary, asset.tet_nodes[asset.tets[asset.sample_tet]])
 
 
-def morph_hand(base: HandAsset, measures, side="right") -> HandAsset:
+def morph_hand(base: HandAsset, measures, side="right", samples="resample") -> HandAsset:
     """The hand at `measures` (dict or HandMeasures), side 'right' or 'left', morphed from `base`,
     a right hand built at other measures (normally the default hand). Not checked: see
-    checks.morph_problems."""
+    checks.morph_problems.
+
+    samples: 'resample' (default): the bone-tissue samples are drawn anew on the fitted capsules
+    in the morphed tets (samples.coupling_samples, as build.py; ~1-2 s); 'carry': the default
+    hand's samples carried by the blended map (same (tet, bone) pairs, so the same sparsity
+    pattern). Carried samples drift off the fitted capsules where the palm map bends most (a Leap
+    hand whose thumb CMC sits 25 mm nearer the wrist: palm samples spread 7 mm toward the thumb,
+    the thumb metacarpal's 6 mm sideways), which couples the palm to the thenar: on leap_grab the
+    palm followed the tracked wrist 5.8 mm (median) off against 3.0 mm for the built hand;
+    resampled, 3.2 mm."""
     if side not in SIDES:
         raise ValueError(f"side must be 'right' or 'left', got {side!r}")
     if base.side != "right":
@@ -305,7 +320,6 @@ def morph_hand(base: HandAsset, measures, side="right") -> HandAsset:
     morphed_nodes = nodes
     nodes = improve_tets(nodes, tets)
     nudged = np.linalg.norm(nodes - morphed_nodes, axis=1)
-    samples = morph(_sample_world(base))
     prox, dist, rot = bone_chain_points(dst)
     skel = skeleton_from_frames(dst, prox, dist, rot)
     skin_tet = np.asarray(base.skin_tet)
@@ -317,20 +331,30 @@ def morph_hand(base: HandAsset, measures, side="right") -> HandAsset:
     if len(far):
         skin_tet = skin_tet.copy()
         skin_tet[far], skin_bary[far], skin_dist[far] = embed_points(nodes, tets, skin[far])
-    sample_tet, sample_bone = np.asarray(base.sample_tet), np.asarray(base.sample_bone)
-    sample_bary = barycentric(nodes, tets, sample_tet, samples)
-    sample_local = np.einsum("pij,pi->pj", rot[sample_bone], samples - prox[sample_bone])
+    if samples == "resample":
+        fresh = coupling_samples(nodes, tets, skel["bone_rest_pose"], skel["bone_capsule_a"],
+                                 skel["bone_capsule_b"], skel["bone_capsule_radius"])
+        sample_tet, sample_bone, sample_count = fresh["sample_tet"], fresh["sample_bone"], fresh["sample_count"]
+        sample_bary, sample_local, sample_total = fresh["sample_bary"], fresh["sample_local"], fresh["bone_sample_total"]
+    elif samples == "carry":
+        points = morph(_sample_world(base))
+        sample_tet, sample_bone = np.asarray(base.sample_tet), np.asarray(base.sample_bone)
+        sample_count, sample_total = np.asarray(base.sample_count), np.asarray(base.bone_sample_total)
+        sample_bary = barycentric(nodes, tets, sample_tet, points)
+        sample_local = np.einsum("pij,pi->pj", rot[sample_bone], points - prox[sample_bone])
+    else:
+        raise ValueError(f"samples must be 'resample' or 'carry', got {samples!r}")
     faces = np.asarray(base.skin_triangles)
     surface = np.asarray(base.tet_surface_triangles)  # same tets: same boundary
     if side == "left":  # as build.py: the right hand mirrored vertex for vertex
-        skin, nodes, samples = skin @ MIRROR, nodes @ MIRROR, samples @ MIRROR
+        skin, nodes = skin @ MIRROR, nodes @ MIRROR
         faces, tets, surface = faces[:, [0, 2, 1]], tets[:, [0, 2, 1, 3]], surface[:, [0, 2, 1]]
         skin_bary, sample_bary = skin_bary[:, [0, 2, 1, 3]], sample_bary[:, [0, 2, 1, 3]]
         skel = skeleton_from_frames(dst, prox @ MIRROR, dist @ MIRROR, MIRROR @ rot @ MIRROR)
         sample_local = sample_local @ MIRROR
     skin_volume = signed_volume(skin, faces)
     tf = tet_figures(nodes, tets, skin_volume)
-    info = dict(method="morph", morph_version=MORPH_VERSION, morphed_from=src.digest(), resolution=base.build_info.get(
+    info = dict(method="morph", morph_version=MORPH_VERSION, samples=samples, morphed_from=src.digest(), resolution=base.build_info.get(
         "resolution"), tet_count=tf["tets"], inverted=tf["inverted"], min_dihedral_deg=tf["min_dihedral_deg"],
         volume_error=tf["volume_error"], skin_triangle_count=int(len(faces)), skin_vertex_count=int(len(skin)),
         skin_volume=float(skin_volume), max_skin_embed_distance=float(skin_dist.max()),
@@ -341,6 +365,6 @@ def morph_hand(base: HandAsset, measures, side="right") -> HandAsset:
         tets=tets.astype(np.int32), tet_surface_triangles=surface,
         skin_tet=skin_tet.astype(np.int32), skin_bary=skin_bary, skin_embed_distance=skin_dist,
         sample_tet=sample_tet.astype(np.int32), sample_bone=sample_bone.astype(np.int32),
-        sample_count=np.asarray(base.sample_count, dtype=np.int32), sample_local=sample_local,
-        sample_bary=sample_bary, bone_sample_total=np.asarray(base.bone_sample_total, dtype=np.int32),
+        sample_count=np.asarray(sample_count, dtype=np.int32), sample_local=sample_local,
+        sample_bary=sample_bary, bone_sample_total=np.asarray(sample_total, dtype=np.int32),
         measures=dst.to_dict(), build_info=info, **skel)
