@@ -26,7 +26,8 @@ def latest(col, name):
 
 def test_sim_node_sizes_the_hand_on_the_first_second(ros_env):
     """Before any tracker frame sim_node reports source auto, collecting, and publishes no bones;
-    after the bag's first second it simulates the fitted hand: source auto, hand length within
+    while the hand is made it keeps publishing /diagnostics (state building); after that it
+    simulates the fitted hand: source auto, hand length within
     2 mm of `softhand calibrate`'s on the same bag (DDS may drop a frame of the window), and it
     publishes /hand/bones."""
     bag = bags_dir() / "small_hand"
@@ -50,6 +51,10 @@ def test_sim_node_sizes_the_hand_on_the_first_second(ros_env):
         v = latest(diag, "sim_node")
         print("sim_node after sizing:", {k: v[k] for k in ("hand_measures_source", "hand_length_mm", "palm_length_mm",
                                                            "palm_width_mm", "steps")}, "expected", round(expected, 1))
+        building = [rm.diagnostic_values(st) for m in diag.msgs for st in m.status
+                    if st.name == "sim_node" and rm.diagnostic_values(st).get("hand_size_state") == "building"]
+        print(f"{len(building)} sim_node /diagnostics while the hand was being made (4 Hz)")
+        assert len(building) >= 2  # the node kept spinning while the worker made the hand
         assert v["hand_measures_source"] == "auto"
         assert abs(float(v["hand_length_mm"]) - expected) < 2.0 and abs(float(v["hand_length_mm"]) - 190.0) > 20.0
         assert len(bones) > 0
