@@ -24,6 +24,8 @@ from softhand_sim.physics.control import Control
 from softhand_sim.physics.coupling import ObjectCopy, limit_coupling_stiffness
 from softhand_sim.physics.coupling import warm_up as coupling_warm_up
 from softhand_sim.handmodel import load_or_build_hand
+from softhand_sim.handmodel.measures import as_measures
+from softhand_sim.hand_sizer import measures_diagnostics
 from softhand_sim.physics.model import build_model
 from softhand_sim.physics.rotations import quat_mul, quat_conj, quat_to_matrix
 from softhand_sim.scene import load_scene
@@ -62,23 +64,35 @@ def _pose_transform(target, rest):
     return rot, dq, target[:3] - rot @ rest[:3]
 
 
+def hand_measures_source(value):
+    """'default', 'auto' or 'file': what the `hand_measures` parameter `value` names."""
+    return "default" if value in ("", "default") else "auto" if value == "auto" else "file"
+
+
 def hand_measures(value):
-    """HandMeasures of the `hand_measures` parameter: 'default' or a measures file."""
+    """HandMeasures of the `hand_measures` parameter: 'default' or a measures file. 'auto' gives
+    the default measures: the hand a runtime starts with until softhand_sim.hand_sizer has fitted
+    the user's (sim_node simulates nothing with it)."""
     from softhand_sim.handmodel.measures import HandMeasures, read_measures_file
-    if value in ("", "default"):
+    if hand_measures_source(value) in ("default", "auto"):
         return HandMeasures()
-    if value == "auto":
-        raise ValueError("hand_measures: 'auto' is not implemented yet; calibrate with `softhand calibrate BAG "
-                         "--out measures.yaml` and pass the file")
     return read_measures_file(value)
 
 
 class SimRuntime:
-    def __init__(self, params, scene=None, asset=None):
+    def __init__(self, params, scene=None, asset=None, measures=None, measures_source=None):
+        """The hand: `asset` if given, else the cached, morphed or built hand (handmodel.cache) at
+        `measures` if given, else at the `hand_measures` parameter's. measures_source: what the
+        diagnostics name as the measures' source (default: the parameter's kind, hand_measures_source)."""
         self.params = params
         self.scene = scene if scene is not None else load_scene(params["scene_file"] or None)
-        self.asset = asset if asset is not None else load_or_build_hand(
-            hand_measures(params["hand_measures"]), side=params["hand_side"], resolution=params["mesh"])
+        value = params["hand_measures"]
+        if asset is None:
+            m = measures if measures is not None else hand_measures(value)
+            asset = load_or_build_hand(m, side=params["hand_side"], resolution=params["mesh"])
+        self.asset = asset
+        self.measures = as_measures(asset.measures)
+        self.measures_source = measures_source or hand_measures_source(value)
         self.objects = list(self.scene.dynamic_objects)
         self.object_names = [o.name for o in self.objects]
         self.model = build_model(self.asset, params, self.objects)
@@ -272,4 +286,5 @@ class SimRuntime:
         return {"contacts": int(c.count), "collision_ms": float(c.collision_ms),
                 "rejected_steps": self.rejected_steps, "steps": self.steps,
                 "copy_gaps": sum(c.gaps for c in self.copies),
-                "stale_objects": ",".join(self.stale_objects(self.last_t)) or "-"}
+                "stale_objects": ",".join(self.stale_objects(self.last_t)) or "-",
+                **measures_diagnostics(self.measures, self.measures_source)}

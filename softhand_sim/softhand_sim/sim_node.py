@@ -25,7 +25,7 @@ from softhand_sim.ros import msgs as rm
 from softhand_sim.ros.markers import CONTACT_MARKERS_TOPIC, ContactMarkerSerializer
 from softhand_sim.params import ParamError
 from softhand_sim.scene import SceneError
-from softhand_sim.ros.common import LATCHED_QOS, LATEST_QOS, PUB_QOS, DiagnosticsPublisher, RejectionLog, RateMeter, fail, run_node, split_cli
+from softhand_sim.ros.common import LATCHED_QOS, LATEST_QOS, PUB_QOS, SENSOR_QOS, DiagnosticsPublisher, RejectionLog, RateMeter, fail, run_node, split_cli
 from softhand_sim.ros.params import declare_node_params
 from softhand_sim.ros.tf import TfBroadcaster
 from softhand_sim.timing import StepStats
@@ -92,6 +92,9 @@ class SimNode(Node):
         self.pub_mesh.publish(rm.mesh_from_numpy(verts, tris))
         self.diag = DiagnosticsPublisher(self, self.collect_diagnostics, 1.0 / self.params["diagnostics_rate"])
         self.timer = self.create_timer(self.dt, self.on_timer)
+        self.sizer = None
+        if self.params["hand_measures"] == "auto":
+            self.sizer = self.start_hand_sizer()
         self.marker_period = 1.0 / self.params["skin_marker_rate"]
         self.marker_serializer = rm.TriangleMarkerSerializer()  # numpy-built CDR: 10x faster than rclpy's
         self.last_marker = -np.inf
@@ -130,8 +133,43 @@ class SimNode(Node):
     def now_s(self):
         return self.get_clock().now().nanoseconds * 1e-9
 
+    # -------------------------------------------------------------------- hand_measures: auto
+    def start_hand_sizer(self):
+        """The first tracked second sizes the hand (softhand_sim.hand_sizer, in a worker thread);
+        nothing is simulated until the fitted hand replaces the default one (poll_hand_sizer)."""
+        from softhand_sim.hand_sizer import HandSizer, tracker_topic
+        from softhand_sim.runtime import SimRuntime
+
+        def make(measures):
+            runtime = SimRuntime(self.params, scene=self.runtime.scene, measures=measures, measures_source="auto")
+            runtime.warm_up(self.dt)
+            return runtime
+
+        sizer = HandSizer(make, side=self.params["hand_side"])
+        self.create_subscription(PoseArray, tracker_topic(self.params["hand_side"]), self.on_tracker, SENSOR_QOS)
+        self.get_logger().info("hand_measures auto: sizing the hand on the first tracked second")
+        return sizer
+
+    def on_tracker(self, msg):
+        if self.sizer is not None and self.sizer.state == "collecting":
+            self.sizer.add_frame(rm.stamp_to_seconds(msg.header.stamp), rm.pose_array_to_numpy(msg))
+
+    def poll_hand_sizer(self):
+        """True once the hand to simulate is known (fitted and swapped in, or the sizing failed)."""
+        from softhand_sim.hand_sizer import handover
+        runtime = self.sizer.poll()
+        if runtime is not None:
+            self.runtime = handover(self.runtime, runtime)
+            self.pub_mesh.publish(rm.mesh_from_numpy(*runtime.skin_rest_mesh()))
+            self.get_logger().info(f"hand_measures auto: {self.sizer.describe()}")
+        elif self.sizer.state == "failed":
+            self.get_logger().error(f"hand_measures auto: {self.sizer.describe()}", once=True)
+        return self.sizer.done
+
     # -------------------------------------------------------------------- the step
     def on_timer(self):
+        if self.sizer is not None and not self.poll_hand_sizer():
+            return
         t = self.now_s()
         t0 = time.perf_counter()
         out = self.runtime.step(self.dt, t)
@@ -176,6 +214,7 @@ class SimNode(Node):
             "target_gaps": self.target_gaps, "target_delay_ms_p50": self.target_delay_ms.median(),
             "target_age_s": time.monotonic() - self.last_target_rx if math.isfinite(self.last_target_rx) else -1.0,
             **self.runtime.diagnostics(),
+            **(self.sizer.diagnostics() if self.sizer is not None and self.sizer.state != "ready" else {}),
             **{f"rejected_{k}": v for k, v in self.rejections.counts.items()},
         }
         values["last_guard_warning"] = self.last_guard_warning or "-"

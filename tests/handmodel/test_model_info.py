@@ -1,6 +1,6 @@
-"""`softhand model info --json [--measures FILE]` through the console script, and hands built at
-other measures (issue #16): the default hand, the small and large sample hands, a hand of
-extreme per-bone ratios, left and right."""
+"""`softhand model info --json [--measures FILE]` through the console script, and hands at other
+measures (issue #16; morphed from the default hand, handmodel.morph): the default hand, the small
+and large sample hands, a hand of extreme per-bone ratios, left and right."""
 import json
 import subprocess
 import sys

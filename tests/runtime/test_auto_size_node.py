@@ -1,0 +1,63 @@
+"""`hand_measures: auto` through real nodes: play_node replays the small-hand bag to tracking_node
+and sim_node; sim_node sizes the hand on the first tracked second (softhand_sim.hand_sizer) and
+from then on simulates it; /diagnostics names the source (auto) and the fitted size."""
+import pytest
+from diagnostic_msgs.msg import DiagnosticArray
+from geometry_msgs.msg import PoseArray
+
+from softhand_sim.commands.offline import read_frames
+from softhand_sim.handmodel.fit import fit_measures, hand_length
+from softhand_sim.paths import bags_dir
+from softhand_sim.ros import msgs as rm
+from tests.support.rosproc import RosGraph
+
+pytestmark = [pytest.mark.ros, pytest.mark.slow, pytest.mark.flaky(reruns=1, reruns_delay=2)]
+
+ARGS = ["--ros-args", "-p", "diagnostics_rate:=4.0"]
+
+
+def latest(col, name):
+    for m in reversed(col.msgs):
+        for st in m.status:
+            if st.name == name:
+                return rm.diagnostic_values(st)
+    return None
+
+
+def test_sim_node_sizes_the_hand_on_the_first_second(ros_env):
+    """Before any tracker frame sim_node reports source auto, collecting, and publishes no bones;
+    while the hand is made it keeps publishing /diagnostics (state building); after that it
+    simulates the fitted hand: source auto, hand length within
+    2 mm of `softhand calibrate`'s on the same bag (DDS may drop a frame of the window), and it
+    publishes /hand/bones."""
+    bag = bags_dir() / "small_hand"
+    expected = hand_length(fit_measures(*read_frames(bag)).measures) * 1e3
+    with RosGraph(ros_env) as g:
+        diag = g.listen("/diagnostics", DiagnosticArray)
+        bones = g.listen("/hand/bones", PoseArray)
+        sim = g.start(["softhand-sim", *ARGS, "-p", "hand_measures:=auto"])
+        tracking = g.start(["softhand-tracking", *ARGS])
+        g.wait_until(lambda: latest(diag, "sim_node") is not None, 120, "sim_node diagnostics", sim)
+        g.wait_until(lambda: latest(diag, "tracking_node") is not None, 120, "tracking_node diagnostics", tracking)
+        v = latest(diag, "sim_node")
+        assert v["hand_measures_source"] == "auto" and v["hand_size_state"] == "collecting", v
+        assert len(bones) == 0
+        g.start(["softhand-play", str(bag), "--wait-subscribers", "2"])
+
+        def sized():
+            v = latest(diag, "sim_node")
+            return v is not None and "hand_size_state" not in v and int(v["steps"]) > 30
+        g.wait_until(sized, 60, "sim_node simulating the fitted hand", sim)
+        v = latest(diag, "sim_node")
+        print("sim_node after sizing:", {k: v[k] for k in ("hand_measures_source", "hand_length_mm", "palm_length_mm",
+                                                           "palm_width_mm", "steps")}, "expected", round(expected, 1))
+        building = [rm.diagnostic_values(st) for m in diag.msgs for st in m.status
+                    if st.name == "sim_node" and rm.diagnostic_values(st).get("hand_size_state") == "building"]
+        print(f"{len(building)} sim_node /diagnostics while the hand was being made (4 Hz)")
+        assert len(building) >= 2  # the node kept spinning while the worker made the hand
+        assert v["hand_measures_source"] == "auto"
+        assert abs(float(v["hand_length_mm"]) - expected) < 2.0 and abs(float(v["hand_length_mm"]) - 190.0) > 20.0
+        assert len(bones) > 0
+        print("\n".join(line for line in sim.output().splitlines() if "hand_measures" in line))
+        assert "hand_measures auto: hand fitted on" in sim.output()
+        assert sim.stop() == 0
