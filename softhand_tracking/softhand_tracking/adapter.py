@@ -48,7 +48,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from softhand_sim.physics.rotations import matrix_to_quat, quat_to_matrix
+from softhand_sim.physics.rotations import cross3, matrix_to_quat, quat_to_matrix
 from softhand_sim.handmodel.skeleton_names import (BONE_COUNT, BONE_SEGMENTS, JOINT_INDEX, OPENXR_JOINT_COUNT)
 
 from softhand_sim.handmodel.kinematics import default_dims, thumb_frame
@@ -114,16 +114,16 @@ def bone_frames(joints: np.ndarray, hand: str = "right", abduction_axes=None) ->
     rot = np.empty((BONE_COUNT, 3, 3))
 
     lateral = p[_INDEX_PROXIMAL] - p[_LITTLE_PROXIMAL]
-    z_palm = s * np.cross(x[0], lateral)
+    z_palm = s * cross3(x[0], lateral)
     z_palm /= np.linalg.norm(z_palm)
-    y_palm = np.cross(z_palm, x[0])
+    y_palm = cross3(z_palm, x[0])
     rot[0] = np.column_stack((x[0], y_palm, z_palm))
     # Abduction axes in world: the palm frame is mirrored for a left hand, so are local vectors.
     n_world = (n_local * np.array([1.0, s, 1.0])) @ rot[0].T
 
     for d, bones in enumerate(DIGIT_BONES):
         xb = x[bones]
-        a = np.cross(n_world[d], xb[0]) + np.cross(xb[0], xb[1]) + np.cross(xb[1], xb[2])
+        a = cross3(n_world[d], xb[0]) + cross3(xb[0], xb[1]) + cross3(xb[1], xb[2])
         norm = np.linalg.norm(a)
         if norm < _FLEX_AXIS_BLEND:  # straight digit along the palm normal: lean on the palm
             a = a + (_FLEX_AXIS_BLEND - norm) / _FLEX_AXIS_BLEND * y_palm
@@ -133,7 +133,7 @@ def bone_frames(joints: np.ndarray, hand: str = "right", abduction_axes=None) ->
                 continue
             y = a - np.dot(a, xb[k]) * xb[k]
             y /= np.linalg.norm(y)
-            rot[b] = np.column_stack((xb[k], y, np.cross(xb[k], y)))
+            rot[b] = np.column_stack((xb[k], y, cross3(xb[k], y)))
 
     poses = np.empty((BONE_COUNT, 7))
     poses[:, :3] = p[_SEG_PROX]
@@ -221,7 +221,7 @@ def validate_joints(joints, config: AdapterConfig) -> np.ndarray:
         raise RejectedFrame("bone_length", f"{bad.size} bone(s) out of bounds, first: bone {b} length "
                             f"{lengths[b]:.4f} m not in [{config.bone_length_min[b]:.4f}, "
                             f"{config.bone_length_max[b]:.4f}]")
-    cross = np.cross(p[_SEG_DIST[0]] - p[_SEG_PROX[0]], p[_INDEX_PROXIMAL] - p[_LITTLE_PROXIMAL])
+    cross = cross3(p[_SEG_DIST[0]] - p[_SEG_PROX[0]], p[_INDEX_PROXIMAL] - p[_LITTLE_PROXIMAL])
     if np.linalg.norm(cross) < _PALM_MIN_CROSS * lengths[0]:
         raise RejectedFrame("degenerate_palm", "palm axis parallel to the INDEX-LITTLE knuckle line")
     return p

