@@ -8,6 +8,9 @@ from softhand_sim.handmodel.build import build_hand
 from softhand_sim.handmodel.measures import as_measures
 
 BUILDER_VERSION = "2"  # bump when the builder's output changes, to invalidate old caches
+# per side on top: the left hand's abduction limits were fixed (mirrored) in left version 1, which
+# left the right hand's arrays, and so its cached files, unchanged
+SIDE_VERSION = {"right": "", "left": "l1"}
 
 
 def cache_dir():
@@ -16,7 +19,7 @@ def cache_dir():
 
 def cache_path(measures=None, side="right", resolution="coarse"):
     m = as_measures(measures)
-    return cache_dir() / f"hand_v{BUILDER_VERSION}_{side}_{resolution}_{m.digest()}.npz"
+    return cache_dir() / f"hand_v{BUILDER_VERSION}{SIDE_VERSION.get(side, '')}_{side}_{resolution}_{m.digest()}.npz"
 
 
 def load_or_build_hand(measures=None, side="right", resolution="coarse"):
