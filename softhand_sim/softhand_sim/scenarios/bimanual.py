@@ -87,7 +87,9 @@ class Handover:
         up = wrist + [0.0, 0.0, HANDOVER_LIFT]
         away = up + [-0.10, 0.0, 0.05]
         o, t, s = self.opened, self.touch, self.squeeze
-        self.right = (Keyframes().add(0.0, wrist + [0, 0, 0.08], o).add(T["r_down"], wrist, o)
+        rest = np.zeros((5, 4))  # the hand enters at rest; opening it at once would fold a tet
+        self.right = (Keyframes().add(0.0, wrist + [0, 0, 0.08], rest).add(0.6, wrist + [0, 0, 0.08], o)
+                      .add(T["r_down"], wrist, o)
                       .add(T["r_touch"], wrist, t).add(T["r_squeeze"], wrist, s).add(T["r_lift0"], wrist, s)
                       .add(T["r_lift1"], up, s).add(T["r_open0"], up, s).add(T["r_open1"], up, o)
                       .add(T["r_away"], away, o))
@@ -127,7 +129,8 @@ class Handover:
         palm, ang = self.right(t)
         out = {"right": right_bone_targets(palm, ang)}
         if self.left is None:
-            out["left"] = left_bone_targets(np.r_[self._left_wait, PALM_DOWN_FACING_BACK], self.opened)
+            out["left"] = left_bone_targets(np.r_[self._left_wait, PALM_DOWN_FACING_BACK],
+                                            self.opened * _smooth(t / 0.6))
         else:
             palm, ang = self.left(t)
             out["left"] = left_bone_targets(palm, ang)
@@ -145,6 +148,12 @@ class TwoHandLift:
     approach, press PRESS, lift LIFT, hold HOLD, lower, let go. Times [s] in T."""
 
     T = dict(touch=1.0, press=1.6, lift0=2.0, lift1=3.0, hold1=6.0, lower1=7.0, release=7.8, end=8.5)
+    # The paper's 170 N/m object coupling (sim_node object_kx = world_node coupling_kx) lets a
+    # 0.6 kg box hang m g / kx = 3.5 cm below its engine copy and lag the palms by as much in a
+    # lift; 1000 N/m (sqrt(k/m) = 41 rad/s, under the 45 rad/s cap) gives the ball's 6 mm sag.
+    # Both sides must use the same value.
+    SIM_OVERRIDES = {"object_kx": 1000.0}
+    WORLD_OVERRIDES = {"coupling_kx": 1000.0}
 
     def __init__(self, scene, box="big_box", press=PRESS):
         o = scene.object(box)
@@ -217,7 +226,7 @@ def _signed_volumes(x, tets):
     return np.einsum("ij,ij->i", a, np.cross(b, c)) / 6.0
 
 
-def make_runtime(sim_overrides=None, scene=None):
+def make_runtime(sim_overrides=None, scene=None, world_overrides=None):
     """The two-hand SimRuntime and pybullet World of the scene with the nodes' default parameters."""
     from softhand_sim.params import load_params
     from softhand_sim.runtime import SimRuntime
@@ -225,7 +234,7 @@ def make_runtime(sim_overrides=None, scene=None):
     from softhand_world.world import World, WorldConfig
 
     sp = load_params("sim_node", overrides={"hands": ["right", "left"], **(sim_overrides or {})})
-    wp = load_params("world_node")
+    wp = load_params("world_node", overrides=world_overrides)
     scene = scene if scene is not None else load_scene(sp["scene_file"] or None)
     runtime = SimRuntime(sp, scene=scene)
     world = World(scene, WorldConfig(
@@ -236,10 +245,13 @@ def make_runtime(sim_overrides=None, scene=None):
     return runtime, world
 
 
-def run(script_cls, obj, sim_overrides=None, until=None, progress=None):
+def run(script_cls, obj, sim_overrides=None, until=None, progress=None, world_overrides=None):
     """Run a script (Handover / TwoHandLift class) on the two-hand runtime + world in lockstep;
-    records the object `obj` (a dynamic object name). Returns BimanualResult."""
-    runtime, world = make_runtime(sim_overrides)
+    records the object `obj` (a dynamic object name). The script's SIM_OVERRIDES /
+    WORLD_OVERRIDES (if any) come first. Returns BimanualResult."""
+    runtime, world = make_runtime({**getattr(script_cls, "SIM_OVERRIDES", {}), **(sim_overrides or {})},
+                                  world_overrides={**getattr(script_cls, "WORLD_OVERRIDES", {}),
+                                                   **(world_overrides or {})})
     script = script_cls(runtime.scene)
     dt = 1.0 / runtime.params["sim_rate"]
     end = script.duration if until is None else float(until)
