@@ -261,8 +261,10 @@ class SimRuntime:
             pose = np.concatenate([rot @ rest[:3] + shift, quat_mul(dq, rest[3:])])
             s.set_body_pose(m, b, pose)
             s.body_v[b] = 0.0
-        s.tet_q[tets] = 0.0
-        s.tet_q[tets, 3] = 1.0
+        # the tets' co-rotational rotations warm-start at the placement's rotation: from the
+        # identity, the few polar iterations of a step do not reach a hand placed turned by
+        # ~180 deg (a left hand facing the right one), and its tets fold in the first steps
+        s.tet_q[tets] = dq / np.linalg.norm(dq)
         self.contacts.reset(h if len(self.hands) > 1 else None)
         self.contacts.hand_enabled[h] = 1
         self.good_state = s.copy()

@@ -95,3 +95,22 @@ def test_left_hand_alone():
     for k in range(20):
         out = rt.step(DT, k * DT)
     assert len(out.contacts["hand"]) > 0 and np.all(out.contacts["hand"] == 1)
+
+
+def test_hand_placed_turned_around_keeps_its_tets():
+    """A hand whose first target is turned 180 deg about z (a left hand facing the right one)
+    is placed with its tets' rotations warm-started there: no tet folds in the first steps."""
+    from softhand_sim.physics.rotations import quat_mul, quat_to_matrix
+    rt = SimRuntime(load_params("sim_node"))
+    turn = np.array([0.0, 0.0, 1.0, 0.0])
+    R = quat_to_matrix(turn)
+    poses = rt.model.body_rest_pose[:16].copy()
+    poses[:, :3] = poses[:, :3] @ R.T + [0.1, 0.2, 1.0]
+    poses[:, 3:] = [quat_mul(turn, q) for q in poses[:, 3:]]
+    rt.set_bone_targets(poses)
+    tets = rt.model.tets
+    for k in range(6):
+        rt.step(DT, k * DT)
+        x = rt.state.node_x
+        a, b, c = (x[tets[:, i]] - x[tets[:, 0]] for i in (1, 2, 3))
+        assert np.einsum("ij,ij->i", a, np.cross(b, c)).min() > 0.0, k
