@@ -157,6 +157,7 @@ def test_one_ball_touched_by_both_hands(assets):
     lp[:, 3:] = np.array([quat_mul(flip, q) for q in lp[:, 3:]])
     place(model, state, 1, lp)
     state.node_x[model.hands.nodes(1)] = flipped + drop
+    state.tet_q[model.hands.tets(1)] = flip  # the co-rotational warm start of a turned hand
     control.set_hand_targets(model, 1, lp)
     control.set_object_targets(model, ball.pose[None], kx=0.0, ktheta=0.0)
     codes = set()
