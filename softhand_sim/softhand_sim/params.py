@@ -63,10 +63,13 @@ _PAPER = "paper Sect. 5.1"
 SIM = {
     "sim_rate": P(float, 60.0, "Hz", "full-simulation step rate; dt = 1/sim_rate (the paper reaches 45-65 steps/s)",
                   10, 2000, positive=True),
-    "hand_side": P(str, "right", "-", "which hand to simulate", choices=("right", "left")),
+    "hand_side": P(str, "right", "-", "which hand to simulate when `hands` is empty", choices=("right", "left")),
     "hand_measures": P(str, "default", "-", "the simulated hand's size: 'default' (19 cm), a measures file written by "
                        "`softhand calibrate`, or 'auto': the first second of tracker frames (/tracker/hand_joints) "
                        "is fitted and nothing is simulated until the hand at that size is ready (a few seconds)"),
+    # [""], not []: ROS cannot type an empty list; empty entries are ignored
+    "hands": P(list, [""], "-", "hands to simulate in one solver: [right], [left] or [right, left] "
+               "(empty: the one hand of hand_side)"),
     "mesh": P(str, "coarse", "-", "tissue resolution: coarse (~850 tets, paper 856) or fine (~8.5k)",
               choices=("coarse", "fine")),
     "youngs_modulus": P(float, 1.0e5, "Pa", f"tissue Young's modulus ({_PAPER}: 1e5)", positive=True),

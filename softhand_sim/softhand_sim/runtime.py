@@ -1,4 +1,4 @@
-"""The full simulation as sim_node runs it, without ROS: hand + objects + contact + copies + guard.
+"""The full simulation as sim_node runs it, without ROS: hands + objects + contact + copies + guard.
 
 SimRuntime owns one Solver (one Newton step + PCG per step, physics/solver.py) with its contact
 system (physics/contact/detection.py), the step inputs (physics/control.Control), the engine
@@ -7,6 +7,13 @@ only converts messages to the arrays this class takes and returns.
 
 This is the input boundary: bone targets are validated and normalised here (set_bone_targets),
 object copies in ObjectCopy.update (set_object_copies); the physics below trusts its inputs.
+
+Hands (issue #18): params["hands"] lists the hands to simulate, ["right"], ["left"] or
+["right", "left"] (empty: the one hand of params["hand_side"]). All of them are one Model (one
+Newton step + PCG, physics/hands.py), so an object held by both is one body. A hand enters the
+simulation at its first valid target (placed there, its contacts on from then) and holds its last
+target when its tracking stops. Calls without `hand` address the first hand of the list, so a
+one-hand caller sees exactly the one-hand runtime.
 
 Timeline of a step at time t: bone targets = the latest intermediate bones (held between
 updates, Sect. 3.6); object targets = the engine copies extrapolated to t + dt (the end of the
@@ -26,6 +33,7 @@ from softhand_sim.physics.coupling import warm_up as coupling_warm_up
 from softhand_sim.handmodel import load_or_build_hand
 from softhand_sim.handmodel.measures import as_measures
 from softhand_sim.hand_sizer import measures_diagnostics
+from softhand_sim.physics.hands import HAND_CODE, SIDES, union_asset
 from softhand_sim.physics.model import build_model
 from softhand_sim.physics.rotations import quat_mul, quat_conj, quat_to_matrix
 from softhand_sim.scene import load_scene
@@ -42,19 +50,41 @@ DISPLAY_TRIANGLES = 3000  # /hand/skin_marker: a decimated skin keeps 10 Hz mark
 
 
 @dataclass
+class HandOutput:
+    side: str                   # "right" / "left"
+    code: int                   # the contacts' `hand` code (0 right, 1 left)
+    entered: bool               # the hand has had a target (it is simulated from then on)
+    bone_poses: np.ndarray      # (16,7)
+    skin_vertices: np.ndarray   # (V,3)
+
+
+@dataclass
 class StepOutput:
     t: float                    # [s] time of the state (end of the step)
-    bone_poses: np.ndarray      # (16,7)
+    bone_poses: np.ndarray      # (16,7) the first hand's (hands[0]); every hand's in `hands`
     object_names: list
     object_poses: np.ndarray    # (O,7) hand-side instances, COM frames
     object_twists: np.ndarray   # (O,6) [m/s, rad/s] world
     object_accels: np.ndarray   # (O,6) finite differences over the step
-    skin_vertices: np.ndarray   # (V,3)
-    contacts: dict              # contact.ContactSystem.output(...)
+    skin_vertices: np.ndarray   # (V,3) the first hand's
+    contacts: dict              # contact.ContactSystem.output(...), of every hand (its `hand` field)
     stats: object               # solver.StepStats
     rejected: bool = False      # the guard rejected this step: state is the last good one
     warning: str = ""
     node_x: np.ndarray = field(default=None, repr=False)
+    hands: dict = field(default_factory=dict)  # side -> HandOutput, every simulated hand
+
+
+def hand_sides(params):
+    """The hands to simulate, in model order: params["hands"] without its empty entries, else
+    [params["hand_side"]]. ValueError on an unknown or repeated side."""
+    sides = [h for h in (params.get("hands") or []) if h] or [params["hand_side"]]
+    for h in sides:
+        if h not in SIDES:
+            raise ValueError(f"sim_node: parameter 'hands' must list 'right' and/or 'left', got {h!r}")
+    if len(set(sides)) != len(sides):
+        raise ValueError(f"sim_node: parameter 'hands' names a hand twice: {sides}")
+    return tuple(sides)
 
 
 def _pose_transform(target, rest):
@@ -80,24 +110,35 @@ def hand_measures(value):
 
 
 class SimRuntime:
+    """The hands and the touched objects in one solver (physics/hands.py for two hands)."""
+
     def __init__(self, params, scene=None, asset=None, measures=None, measures_source=None):
-        """The hand: `asset` if given, else the cached, morphed or built hand (handmodel.cache) at
+        """asset: the hand asset (one hand), or a list of assets in the order of hand_sides(params);
+        None: each hand cached, morphed or built (handmodel.cache) for its side at params["mesh"] and at
         `measures` if given, else at the `hand_measures` parameter's. measures_source: what the
         diagnostics name as the measures' source (default: the parameter's kind, hand_measures_source)."""
         self.params = params
         self.scene = scene if scene is not None else load_scene(params["scene_file"] or None)
+        self.hands = hand_sides(params)
         value = params["hand_measures"]
         if asset is None:
             m = measures if measures is not None else hand_measures(value)
-            asset = load_or_build_hand(m, side=params["hand_side"], resolution=params["mesh"])
-        self.asset = asset
-        self.measures = as_measures(asset.measures)
+            assets = [load_or_build_hand(m, side=h, resolution=params["mesh"]) for h in self.hands]
+        else:
+            assets = list(asset) if isinstance(asset, (list, tuple)) else [asset]
+        if len(assets) != len(self.hands):
+            raise ValueError(f"{len(assets)} hand asset(s) for hands {list(self.hands)}")
+        self.hand_assets = assets
+        self.asset = assets[0]  # the first hand's (single-hand callers)
+        self.measures = as_measures(self.asset.measures)
         self.measures_source = measures_source or hand_measures_source(value)
         self.objects = list(self.scene.dynamic_objects)
         self.object_names = [o.name for o in self.objects]
-        self.model = build_model(self.asset, params, self.objects)
-        self.contacts = contact_mod.build_contact_system(self.model, self.scene, self.asset,
+        union = union_asset(assets)  # the one asset itself for one hand
+        self.model = build_model(union, params, self.objects)
+        self.contacts = contact_mod.build_contact_system(self.model, self.scene, union,
                                                          kn=params["contact_kn"], kf=params["contact_kf"])
+        self.contacts.hand_enabled[:] = 0  # no contact before a hand's first target
         self.solver = Solver(self.model, contacts=self.contacts)
         self.state = State.at_rest(self.model)
         self.control = Control.at_rest(self.model)
@@ -111,57 +152,87 @@ class SimRuntime:
         self.copies = [ObjectCopy(n, extrapolate=params["extrapolate"], timeout=params["copy_timeout"])
                        for n in self.object_names]
         self.object_targets = np.array([o.pose for o in self.objects]).reshape(-1, 7)
-        self.bone_targets = None
-        self.bone_target_stamp = None
-        self.placed = False
+        H = len(self.hands)
+        self.hand_targets = [None] * H   # latest validated (16,7) targets per hand
+        self.hand_stamps = [None] * H
+        self.hand_placed = [False] * H
         self.rejected_steps = 0
         self.steps = 0
         self.last_t = 0.0
         self._prev_body_v = self.state.body_v[nb:].copy()
         self._skin = np.empty((len(self.model.skin_tet), 3))
-        self._display = None
+        self._display = [None] * H
+
+    # ---------------------------------------------------------------- hands
+    def hand_index(self, hand=None):
+        """Index (model.hands order) of side `hand`; None: the first hand."""
+        return 0 if hand is None else self.model.hands.index(hand)
+
+    @property
+    def bone_targets(self):
+        """The first hand's latest targets (16,7), None before its first."""
+        return self.hand_targets[0]
+
+    @property
+    def bone_target_stamp(self):
+        return self.hand_stamps[0]
+
+    @property
+    def placed(self):
+        """True once any hand has entered the simulation."""
+        return any(self.hand_placed)
 
     # ---------------------------------------------------------------- description and meshes
     def describe(self):
         m = self.model
-        return (f"{self.params['hand_side']} hand, {len(m.tets)} tets, {m.node_count} nodes, "
-                f"{m.dof_count} dofs, {len(self.asset.skin_triangles)} skin triangles, objects "
+        tris = sum(len(a.skin_triangles) for a in self.hand_assets)
+        return (f"{'+'.join(self.hands)} hand{'s' if len(self.hands) > 1 else ''}, {len(m.tets)} tets, "
+                f"{m.node_count} nodes, {m.dof_count} dofs, {tris} skin triangles, objects "
                 f"{self.object_names}, contact points {self.contacts.model.point_count}, "
                 f"preconditioner {self.params['preconditioner']}")
 
-    def skin_rest_mesh(self):
-        return np.asarray(self.asset.skin_vertices), np.asarray(self.asset.skin_triangles)
+    def skin_rest_mesh(self, hand=None):
+        """(vertices (V,3), triangles) of a hand's skin at its rest pose (default: the first hand)."""
+        a = self.hand_assets[self.hand_index(hand)]
+        return np.asarray(a.skin_vertices), np.asarray(a.skin_triangles)
 
-    def _display_embedding(self):
-        """A decimated copy of the skin, each vertex embedded in the tet of its nearest skin vertex."""
-        if self._display is None:
+    def _display_embedding(self, h=0):
+        """A decimated copy of hand h's skin, each vertex embedded in the tet of its nearest skin
+        vertex (node indices of the model)."""
+        if self._display[h] is None:
             import fast_simplification
             from scipy.spatial import cKDTree
 
-            verts, tris = self.skin_rest_mesh()
+            asset = self.hand_assets[h]
+            verts, tris = np.asarray(asset.skin_vertices), np.asarray(asset.skin_triangles)
             ratio = max(0.0, 1.0 - DISPLAY_TRIANGLES / len(tris))
             dv, dt = fast_simplification.simplify(verts.astype(np.float32), tris.astype(np.int32), ratio)
             dv = dv.astype(np.float64)
             _, nearest = cKDTree(verts).query(dv)
-            tet = np.asarray(self.asset.skin_tet)[nearest]
-            corners = np.asarray(self.asset.tet_nodes)[np.asarray(self.asset.tets)[tet]]  # (D,4,3)
+            tet = np.asarray(asset.skin_tet)[nearest]
+            corners = np.asarray(asset.tet_nodes)[np.asarray(asset.tets)[tet]]  # (D,4,3)
             mat = np.transpose(corners[:, 1:] - corners[:, :1], (0, 2, 1))
             w = np.linalg.solve(mat, (dv - corners[:, 0])[:, :, None])[:, :, 0]
             bary = np.column_stack([1.0 - w.sum(axis=1), w])
-            self._display = (np.asarray(self.asset.tets)[tet], bary, np.asarray(dt, dtype=np.int32))
-        return self._display
+            nodes = np.asarray(asset.tets)[tet] + self.model.hands.node0[h]
+            self._display[h] = (nodes, bary, np.asarray(dt, dtype=np.int32))
+        return self._display[h]
 
-    def display_mesh(self, out=None):
-        """(vertices (D,3), triangles) of the decimated skin at the current state."""
-        nodes, bary, tris = self._display_embedding()
+    def display_mesh(self, out=None, hand=None):
+        """(vertices (D,3), triangles) of a hand's decimated skin at the current state (default:
+        the first hand)."""
+        nodes, bary, tris = self._display_embedding(self.hand_index(hand))
         x = self.state.node_x
         return np.einsum("dk,dki->di", bary, x[nodes]), tris
 
     # ---------------------------------------------------------------- inputs
-    def set_bone_targets(self, poses, stamp=None):
-        """Intermediate bones (16,7); the first call also places the hand at the targets' palm."""
+    def set_bone_targets(self, poses, stamp=None, hand=None):
+        """Intermediate bones (16,7) of hand `hand` ("right" / "left"; None: the first hand); the
+        hand's first call also places it at the targets' palm (it enters the simulation)."""
+        h = self.hand_index(hand)
         poses = np.asarray(poses, dtype=np.float64)
-        nb = self.model.bone_count
+        bones = self.model.hands.bones(h)
+        nb = bones.stop - bones.start
         if poses.shape != (nb, 7):
             raise ValueError(f"bone targets must have shape ({nb}, 7), got {poses.shape}")
         if not np.all(np.isfinite(poses)):
@@ -171,11 +242,11 @@ class SimRuntime:
             raise ValueError(f"bone target quaternions are not unit (norms {norms.min():.3g}..{norms.max():.3g})")
         poses = poses.copy()
         poses[:, 3:] /= norms[:, None]
-        self.bone_targets = poses
-        self.bone_target_stamp = stamp
-        self.control.set_bone_targets(self.model, poses)
-        if not self.placed:
-            self.place_hand(poses[0])
+        self.hand_targets[h] = poses
+        self.hand_stamps[h] = stamp
+        self.control.set_hand_targets(self.model, h, poses)
+        if not self.hand_placed[h]:
+            self.place_hand(poses[0], self.hands[h])
 
     def warm_up(self, dt):
         """Run one throwaway step so numba compiles (or loads from its cache) every kernel of the
@@ -184,32 +255,44 @@ class SimRuntime:
         On a fresh checkout the first step compiles for about a minute: a node that published
         before this would simulate nothing while its peers ran on.
         """
-        saved = (self.state.copy(), self.good_state.copy(), self.control.copy(), self.bone_targets,
-                 self.placed, self.steps, self._prev_body_v.copy(), self.object_targets.copy())
-        self.set_bone_targets(self.model.body_rest_pose[:self.model.bone_count])
+        saved = (self.state.copy(), self.good_state.copy(), self.control.copy(), list(self.hand_targets),
+                 list(self.hand_stamps), list(self.hand_placed), self.steps, self._prev_body_v.copy(),
+                 self.object_targets.copy(), self.contacts.hand_enabled.copy())
+        for h, side in enumerate(self.hands):
+            self.set_bone_targets(self.model.body_rest_pose[self.model.hands.bones(h)], hand=side)
         self.step(dt, 0.0)
-        self.display_mesh()
+        for side in self.hands:
+            self.display_mesh(hand=side)
         coupling_warm_up()
-        (self.state, self.good_state, self.control, self.bone_targets, self.placed, self.steps,
-         self._prev_body_v, self.object_targets) = saved
+        (self.state, self.good_state, self.control, self.hand_targets, self.hand_stamps,
+         self.hand_placed, self.steps, self._prev_body_v, self.object_targets, enabled) = saved
         self.contacts.reset()
+        self.contacts.hand_enabled[:] = enabled
         self.rejected_steps = 0
 
-    def place_hand(self, palm_pose):
-        """Teleport the whole hand rigidly so that its palm is at `palm_pose` (at rest otherwise)."""
+    def place_hand(self, palm_pose, hand=None):
+        """Teleport a whole hand (default: the first) rigidly so that its palm is at `palm_pose`
+        (at rest otherwise), and let it enter the simulation (its contacts on). The other hands
+        and the objects keep their state."""
         m, s = self.model, self.state
-        rot, dq, shift = _pose_transform(np.asarray(palm_pose, float), m.body_rest_pose[0])
-        s.node_x[:] = m.node_rest @ rot.T + shift
-        s.v[:] = 0.0
-        for b in range(m.bone_count):
+        h = self.hand_index(hand)
+        nodes, bones, tets = m.hands.nodes(h), m.hands.bones(h), m.hands.tets(h)
+        rot, dq, shift = _pose_transform(np.asarray(palm_pose, float), m.body_rest_pose[bones.start])
+        s.node_x[nodes] = m.node_rest[nodes] @ rot.T + shift
+        s.v[3 * nodes.start:3 * nodes.stop] = 0.0
+        for b in range(bones.start, bones.stop):
             rest = m.body_rest_pose[b]
             pose = np.concatenate([rot @ rest[:3] + shift, quat_mul(dq, rest[3:])])
             s.set_body_pose(m, b, pose)
-        s.tet_q[:] = 0.0
-        s.tet_q[:, 3] = 1.0
-        self.contacts.reset()
+            s.body_v[b] = 0.0
+        # the tets' co-rotational rotations warm-start at the placement's rotation: from the
+        # identity, the few polar iterations of a step do not reach a hand placed turned by
+        # ~180 deg (a left hand facing the right one), and its tets fold in the first steps
+        s.tet_q[tets] = dq / np.linalg.norm(dq)
+        self.contacts.reset(h if len(self.hands) > 1 else None)
+        self.contacts.hand_enabled[h] = 1
         self.good_state = s.copy()
-        self.placed = True
+        self.hand_placed[h] = True
 
     def set_object_copies(self, names, poses, twists, accels, stamp):
         """Engine copies of objects; returns a list of rejection messages (unknown names, bad values)."""
@@ -242,7 +325,7 @@ class SimRuntime:
 
     def step(self, dt, t):
         """Advance by dt from time t; returns StepOutput, or None while no bone target arrived."""
-        if self.bone_targets is None:
+        if not self.placed:
             return None
         nb = self.model.bone_count
         self.last_t = t
@@ -262,11 +345,17 @@ class SimRuntime:
         self._prev_body_v = body_v.copy()
         self.solver.skin_positions(self.state, self._skin)
         s = self.state
+        layout = self.model.hands
+        hands = {side: HandOutput(side=side, code=HAND_CODE[side], entered=self.hand_placed[h],
+                                  bone_poses=s.body_pose[layout.bones(h)].copy(),
+                                  skin_vertices=self._skin[layout.skin(h)])
+                 for h, side in enumerate(self.hands)}
+        first = hands[self.hands[0]]
         return StepOutput(
-            t=t + dt, bone_poses=s.bone_pose.copy(), object_names=self.object_names,
+            t=t + dt, bone_poses=first.bone_poses, object_names=self.object_names,
             object_poses=s.object_pose.copy(), object_twists=body_v.copy(), object_accels=accels,
-            skin_vertices=self._skin, contacts=self.contacts.output(s.node_x, s.body_x, s.body_q),
-            stats=stats, rejected=rejected, warning=warning, node_x=s.node_x)
+            skin_vertices=first.skin_vertices, contacts=self.contacts.output(s.node_x, s.body_x, s.body_q),
+            stats=stats, rejected=rejected, warning=warning, node_x=s.node_x, hands=hands)
 
     def _guard(self, stats):
         """'' if the new state is acceptable, else why the step is rejected."""
@@ -283,8 +372,13 @@ class SimRuntime:
 
     def diagnostics(self):
         c = self.contacts
-        return {"contacts": int(c.count), "collision_ms": float(c.collision_ms),
+        out = {"contacts": int(c.count), "collision_ms": float(c.collision_ms),
                 "rejected_steps": self.rejected_steps, "steps": self.steps,
                 "copy_gaps": sum(c.gaps for c in self.copies),
                 "stale_objects": ",".join(self.stale_objects(self.last_t)) or "-",
                 **measures_diagnostics(self.measures, self.measures_source)}
+        if len(self.hands) > 1:
+            out["hands"] = ",".join(f"{side}:{'in' if placed else 'waiting'}"
+                                    for side, placed in zip(self.hands, self.hand_placed))
+        return out
+

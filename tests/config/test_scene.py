@@ -16,6 +16,18 @@ def test_default_scene():
     assert ball.shape == "sphere" and ball.mass == 0.1 and abs(ball.dims["radius"] - 0.04) < 0.005
     assert {o.shape for o in scene.dynamic_objects} >= {"sphere", "box", "cylinder"}
     assert all(o.friction == 0.5 for o in scene.objects)
+    # the two-hand box (issue #18): ~30 x 20 x 10 cm, 0.6 kg, too big for one hand
+    big = scene.object("big_box")
+    assert big.shape == "box" and big.mass == 0.6 and sorted(big.dims["size"]) == [0.10, 0.20, 0.30]
+    # ... and clear of the ball and of the other objects (8 cm at least, footprints on the table)
+    def footprint(o):
+        r = np.full(2, o.dims["radius"]) if "radius" in o.dims else 0.5 * np.asarray(o.dims["size"][:2])
+        return o.pose[:2] - r, o.pose[:2] + r
+    blo, bhi = footprint(big)
+    for o in scene.dynamic_objects:
+        if o is not big:
+            lo, hi = footprint(o)
+            assert np.max(np.maximum(lo - bhi, blo - hi)) >= 0.07, o.name
     # every dynamic object starts resting on the table top (not inside it, not floating)
     top = table.pose[2] + table.dims["size"][2] / 2
     for o in scene.dynamic_objects:

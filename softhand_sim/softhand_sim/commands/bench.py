@@ -2,7 +2,7 @@
 
     python -m softhand_sim.commands.bench [--scenario free|press|grasp] [--mesh coarse|fine|box]
                                  [--steps N] [--preconditioner factor|block_jacobi|jacobi]
-                                 [--all-preconditioners] [--json]
+                                 [--all-preconditioners] [--hands 1|2|1,2] [--json]
 
 Meshes: coarse / fine = the parametric hand model (handmodel.load_or_build_hand(resolution=...));
 box = the voxel box hand of bench_scenes (~850 tets, the paper's size; no hand builder needed).
@@ -13,6 +13,11 @@ time; self_contacts_median / self_collision_ms: the same for skin-skin contact (
 free_self: `free` with self contact on; fist: the tight fist of scenarios/self_contact.py).
 Timings: median and p99 of the whole step (wall clock, one thread: NUMBA_NUM_THREADS=1);
 setup = rotations + assembly (+ the preconditioner's refactorization), solve = PCG + advance.
+
+--hands 2: both hands in one model (issue #18; the left mirrored, 30 cm to the right hand's -y
+side): `free` moves both, `press` loads both hands' pads, `grasp` is both palms pressing and
+lifting the scene's big box (scenarios/bimanual.TwoHandLift on the solver, the box's engine copy
+held at its scene pose: the world's resting box). `--hands 1,2` runs both counts.
 """
 import argparse
 import json
@@ -34,8 +39,16 @@ DT = 0.01
 _ASSETS = {}
 
 
-def _asset(mesh):
-    """(asset, source) for a mesh name; cached per process."""
+def _asset(mesh, side="right"):
+    """(asset, source) for a mesh name (and hand side); cached per process."""
+    if side != "right":
+        if mesh == "box":
+            raise ValueError("--hands 2 needs the hand model (--mesh coarse or fine), not the box hand")
+        key = (mesh, side)
+        if key not in _ASSETS:
+            from softhand_sim.handmodel import load_or_build_hand
+            _ASSETS[key] = (load_or_build_hand(side=side, resolution=mesh), "hand_model")
+        return _ASSETS[key]
     if mesh not in _ASSETS:
         if mesh == "box":
             from softhand_sim.scenarios.bench_scenes import box_hand_with_tets
@@ -142,26 +155,142 @@ SCENARIOS = {"free": _Free(), "press": _Press(), "free_self": _FreeSelf(), "fist
 from softhand_sim.scenarios.contact import PinchScenario  # noqa: E402
 SCENARIOS["grasp"] = PinchScenario()  # thumb-index pinch of the ball, lifted (contact_scenarios.py)
 
+LEFT_SHIFT = np.array([0.0, -0.30, 0.0])  # [m] the left hand of --hands 2, beside the right one
 
-def run(scenario, mesh, steps, preconditioner):
+
+def _shift_hand(model, state, h, d):
+    """Translate hand h of the state rigidly by d (3,) [m] (nodes and bones)."""
+    state.node_x[model.hands.nodes(h)] += d
+    for b in range(*model.hands.bones(h).indices(model.body_count)):
+        state.body_x[b] += d
+        state.body_pose[b, :3] += d
+
+
+class _TwoHands:
+    """A one-hand scenario (free, press) run on both hands: the right as in the one-hand bench,
+    the left (its own asset: mirrored joints) by the same recipe, shifted LEFT_SHIFT."""
+
+    def __init__(self, one):
+        self.one = one
+        self.assets = None
+
+    def objects(self, assets):
+        self.assets = assets
+        return ()
+
+    def __call__(self, solver, state, control):
+        model = solver.model
+        _shift_hand(model, state, 1, LEFT_SHIFT)
+        updates = []
+        for h, asset in enumerate(self.assets):
+            sub = type(self.one)()
+            sub.objects(asset)
+            updates.append(self._per_hand(sub, asset, model, h, state, control))
+
+        def update(k, t):
+            for u in updates:
+                u(k, t)
+        return update
+
+    @staticmethod
+    def _per_hand(sub, asset, model, h, state, control):
+        if isinstance(sub, _Free):
+            a = asset
+            lim = np.asarray(a.joint_limits, float)[:, 0, 1]
+            amp = np.where(np.asarray(a.joint_type) == 1, 0.7, 0.4) * np.maximum(lim, 0.0)
+            shift = LEFT_SHIFT if h else np.zeros(3)
+
+            def update(k, t):
+                s = 0.5 * (1.0 - np.cos(2.0 * np.pi * t))
+                off = 0.02 * np.array([np.sin(t), np.cos(1.3 * t) - 1.0, 0.0]) + shift
+                control.set_hand_targets(model, h, flexed_pose(a, s * amp, off))
+            pose = flexed_pose(asset, np.zeros(len(asset.joint_parent)), LEFT_SHIFT if h else np.zeros(3))
+            control.set_hand_targets(model, h, pose)
+            return update
+        pads = fingertip_pad_nodes(asset)
+        nodes = np.concatenate(pads) + model.hands.node0[h]
+        share = np.concatenate([np.full(len(p), 1.0 / len(p)) for p in pads])
+        if h:
+            control.set_hand_targets(model, h, np.asarray(asset.bone_rest_pose) + np.r_[LEFT_SHIFT, np.zeros(4)])
+
+        def update(k, t):
+            control.node_force[nodes, 2] = 5.0 * min(1.0, t / 0.2) * share
+        return update
+
+
+class _TwoHandGrasp:
+    """Both palms press the scene's big box from its y ends and lift it (TwoHandLift on the
+    solver): from T0 (hands 1 cm off the faces) on; the box's engine copy stays at its scene pose."""
+
+    T0 = 0.6  # [s] into the TwoHandLift script: the palms 1-2 cm from the faces
+
+    def __init__(self):
+        self.script = None
+
+    def params(self):
+        from softhand_sim.params import load_params
+        return load_params("sim_node")
+
+    def objects(self, assets):
+        from softhand_sim.scenarios.bimanual import TwoHandLift
+        from softhand_sim.scene import load_scene
+        self.assets = assets
+        self.scene = load_scene()
+        self.script = TwoHandLift(self.scene)
+        return [self.scene.object(self.script.box)]
+
+    def contacts(self, model):
+        from softhand_sim.physics.contact import detection as contact
+        from softhand_sim.physics.hands import union_asset
+        from softhand_sim.scene import Scene
+        box = self.scene.object(self.script.box)
+        return contact.build_contact_system(model, Scene(-1.0, 0.5, (box,)), union_asset(self.assets))
+
+    def __call__(self, solver, state, control):
+        from softhand_sim.runtime import _pose_transform
+        model = solver.model
+        first = self.script.targets(self.T0)
+        for h, side in enumerate(("right", "left")):  # place each hand at its first targets
+            bones = model.hands.bones(h)
+            rot, dq, shift = _pose_transform(first[side][0], model.body_rest_pose[bones.start])
+            nodes = model.hands.nodes(h)
+            state.node_x[nodes] = model.node_rest[nodes] @ rot.T + shift
+            for b, pose in zip(range(bones.start, bones.stop), first[side]):
+                state.set_body_pose(model, b, pose)
+
+        def update(k, t):
+            for h, (side, poses) in enumerate(self.script.targets(self.T0 + t).items()):
+                control.set_hand_targets(model, h, poses)
+        return update
+
+
+SCENARIOS_TWO_HANDS = {"free": _TwoHands(_Free()), "press": _TwoHands(_Press()), "grasp": _TwoHandGrasp()}
+
+
+def run(scenario, mesh, steps, preconditioner, hands=1):
     from softhand_sim.physics.model import build_model
     from softhand_sim.physics.solver import Solver
     asset, source = _asset(mesh)
-    objects = getattr(SCENARIOS[scenario], "objects", None)  # scenarios may add rigid objects
-    params = getattr(SCENARIOS[scenario], "params", dict)()   # ... and their own solver parameters
+    scenes = SCENARIOS if hands == 1 else SCENARIOS_TWO_HANDS
+    if hands == 2:
+        asset = [asset, _asset(mesh, "left")[0]]
+    elif hands != 1:
+        raise ValueError(f"--hands {hands}: expected 1 or 2")
+    objects = getattr(scenes[scenario], "objects", None)  # scenarios may add rigid objects
+    params = getattr(scenes[scenario], "params", dict)()   # ... and their own solver parameters
     model = build_model(asset, {**params, "preconditioner": preconditioner},
                         objects=objects(asset) if objects else ())
     t0 = time.perf_counter()
-    contacts = getattr(SCENARIOS[scenario], "contacts", lambda model: None)  # ... and contact
-    self_contacts = getattr(SCENARIOS[scenario], "self_contacts", lambda model: None)  # ... and skin on skin
+    contacts = getattr(scenes[scenario], "contacts", lambda model: None)  # ... and contact
+    self_contacts = getattr(scenes[scenario], "self_contacts", lambda model: None)  # ... and skin on skin
     warm = Solver(model, contacts=contacts(model), self_contacts=self_contacts(model))  # compile once
     ws, wc = model.initial_state(), model.control()
-    SCENARIOS[scenario](warm, ws, wc)(0, 0.0)
+    scenes[scenario](warm, ws, wc)(0, 0.0)
     warm.step(ws, wc, DT)
     compile_s = time.perf_counter() - t0
     solver = Solver(model, contacts=contacts(model), self_contacts=self_contacts(model))
     state, control = model.initial_state(), model.control()
-    update = SCENARIOS[scenario](solver, state, control)
+    update = scenes[scenario](solver, state, control)
     ms, setup, solve, iters, contacts, coll, caps, refac = [], [], [], [], [], [], 0, 0
     self_n, self_ms = [], []
     for k in range(steps):
@@ -180,7 +309,7 @@ def run(scenario, mesh, steps, preconditioner):
         refac += st.refactored
     ms = np.array(ms)
     return {
-        "mesh": mesh, "source": source, "tets": int(len(model.tets)), "dofs": int(model.dof_count),
+        "hands": hands, "mesh": mesh, "source": source, "tets": int(len(model.tets)), "dofs": int(model.dof_count),
         "nnz": int(len(model.indices)), "scenario": scenario, "preconditioner": preconditioner,
         "steps": steps, "median_ms": float(np.median(ms)), "p99_ms": float(np.percentile(ms, 99)),
         "max_ms": float(ms.max()), "steps_per_s": float(1e3 / np.median(ms)),
@@ -194,7 +323,7 @@ def run(scenario, mesh, steps, preconditioner):
     }
 
 
-COLUMNS = ["scenario", "mesh", "tets", "dofs", "preconditioner", "median_ms", "p99_ms",
+COLUMNS = ["hands", "scenario", "mesh", "tets", "dofs", "preconditioner", "median_ms", "p99_ms",
            "steps_per_s", "setup_ms", "solve_ms", "cg_iters_median", "cg_hit_cap", "refactors",
            "contacts_median", "collision_ms", "self_contacts_median", "self_collision_ms", "compile_s"]
 
@@ -217,13 +346,18 @@ def main(argv=None):
     ap.add_argument("--all-preconditioners", action="store_true",
                     help="run every preconditioner (the default factor, block_jacobi, the paper's jacobi)")
     ap.add_argument("--steps", type=int, default=300)
+    ap.add_argument("--hands", default="1", help="hands in the model: 1, 2 or 1,2 (both counts)")
     ap.add_argument("--json", action="store_true")
     a = ap.parse_args(argv)
     if a.steps < 1:
         ap.error(f"--steps={a.steps}: must be >= 1")
     precs = list(PRECONDITIONERS) if a.all_preconditioners else (a.preconditioner or ["factor"])
     try:
-        rows = [run(s, m, a.steps, p) for m in (a.mesh or ["coarse", "fine"])
+        counts = [int(h) for h in a.hands.split(",")]
+    except ValueError:
+        ap.error(f"--hands {a.hands!r}: expected 1, 2 or 1,2")
+    try:
+        rows = [run(s, m, a.steps, p, h) for h in counts for m in (a.mesh or ["coarse", "fine"])
                 for s in (a.scenario or ["free", "press"]) for p in precs]
     except ValueError as e:
         ap.error(str(e))

@@ -46,6 +46,9 @@ def build_hand(measures=None, side="right", resolution="coarse"):
         prox, dist = prox @ MIRROR, dist @ MIRROR
         rot = MIRROR @ rot @ MIRROR  # mirrored x and z axes, y = z x x
         skel = skeleton_from_frames(m, prox, dist, rot)
+        # a mirror keeps flexion (about y = z x x) but reverses abduction (about z): the mirror
+        # of a right-hand abduction range [lo, hi] is [-hi, -lo] (the thumb CMC's is asymmetric)
+        skel["joint_limits"][:, 1] = -skel["joint_limits"][:, 1, ::-1]
         samples["sample_local"] = samples["sample_local"] @ MIRROR  # bone-frame y flips
         samples["sample_bary"] = samples["sample_bary"][:, [0, 2, 1, 3]]
     t3 = time.perf_counter()

@@ -21,6 +21,9 @@ from softhand_sim.handmodel.tissue import COARSE_EMBED_TOLERANCE
 BUILDER_VERSION = "3"  # bump when the builder's output changes, to invalidate old caches
 METHODS = ("auto", "morph", "build")
 log = logging.getLogger("softhand_sim.handmodel")
+# per side on top: the left hand's abduction limits were fixed (mirrored) in left version 1, which
+# left the right hand's arrays, and so its cached files, unchanged
+SIDE_VERSION = {"right": "", "left": "l1"}
 
 
 def cache_dir():

@@ -54,8 +54,15 @@ class Control:
             self.target_x[b] = pose[:3] + quat_to_matrix(self.target_q[b]) @ model.body_com_local[b]
 
     def set_bone_targets(self, model, poses):
-        """Intermediate-bone targets (bone_count, 7) bone-frame poses [m, unit quaternion] (Sect. 3.6)."""
+        """Intermediate-bone targets (bone_count, 7) bone-frame poses [m, unit quaternion] (Sect. 3.6);
+        with several hands, every hand's bones in model order (set_hand_targets sets one hand)."""
         self._set_targets(model, 0, np.asarray(poses, dtype=np.float64).reshape(model.bone_count, 7))
+
+    def set_hand_targets(self, model, hand, poses):
+        """Intermediate-bone targets (16, 7) of hand `hand` (index into model.hands) only."""
+        bones = model.hands.bones(hand)
+        count = bones.stop - bones.start
+        self._set_targets(model, bones.start, np.asarray(poses, dtype=np.float64).reshape(count, 7))
 
     def set_object_targets(self, model, poses, kx=None, ktheta=None):
         """Engine-copy targets (object_count, 7) COM poses [m, unit quaternion] (Sect. 3.7); optional

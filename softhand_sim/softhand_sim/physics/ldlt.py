@@ -105,6 +105,30 @@ def _symbolic_rows(n, indptr, indices, perm, pinv, parent, Lp, Li, row_ptr, row_
     row_ptr[n] = t
 
 
+def grouped_order(indptr, indices, n, groups):
+    """Fill-reducing ordering (new -> old) of the blocks of an n x n block pattern that never
+    mixes the given groups: each group (an array of block indices, e.g. one hand's node and bone
+    blocks) is ordered on its own sub-pattern, groups one after the other, then every block in
+    no group (the object bodies, which couple to every group) last. With no coupling between the
+    groups but through those last blocks, L is block-diagonal per group plus the last rows: a
+    model of H hands factors in H times one hand's flops (one ordering of the union does not
+    see the blocks and can fill across them)."""
+    import scipy.sparse as sp
+    pattern = sp.csr_matrix((np.ones(len(indices)), indices, indptr), shape=(n, n))
+    seen = np.zeros(n, bool)
+    parts = []
+    for g in groups:
+        g = np.asarray(g, np.int64)
+        sub = pattern[g][:, g].tocsr()
+        parts.append(g[fill_reducing_order(sub.indptr, sub.indices, len(g))])
+        seen[g] = True
+    rest = np.flatnonzero(~seen)
+    if len(rest):
+        sub = pattern[rest][:, rest].tocsr()
+        parts.append(rest[fill_reducing_order(sub.indptr, sub.indices, len(rest))])
+    return np.concatenate(parts).astype(np.int32)
+
+
 def block_pattern(indptr, indices, n, bs=3):
     """CSR pattern of the bs x bs blocks of an n x n CSR pattern (n divisible by bs) and
     blk_slots (nnzB, bs, bs) int32: the value index of each scalar entry of each block (-1: absent)."""
@@ -246,14 +270,19 @@ def ldlt_solve(Lp, Li, Lx, Dinv, perm, tmp, r, z):
 class Symbolic:
     """Everything structural about the 3x3-block LDLᵀ of a fixed CSR pattern (computed once):
     the block pattern, its ordering perm (new -> old block), L's block structure (Lp, Li), the
-    per-row patterns and gather lists of ldlt_numeric_rows, flops per block row."""
+    per-row patterns and gather lists of ldlt_numeric_rows, flops per block row.
+    groups: optional lists of 3x3-block indices ordered apart (grouped_order: one per hand)."""
 
-    def __init__(self, indptr, indices, n, perm=None):
+    def __init__(self, indptr, indices, n, perm=None, groups=None):
         bindptr, bindices, self.blk_slots = block_pattern(indptr, indices, n)
         self.n = n
         self.nb = nb = n // 3
-        self.perm = (fill_reducing_order(bindptr, bindices, nb) if perm is None
-                     else np.asarray(perm, np.int32))
+        if perm is not None:
+            self.perm = np.asarray(perm, np.int32)
+        elif groups is not None:
+            self.perm = grouped_order(bindptr, bindices, nb, groups)
+        else:
+            self.perm = fill_reducing_order(bindptr, bindices, nb)
         self.pinv = np.empty(nb, np.int32)
         self.pinv[self.perm] = np.arange(nb, dtype=np.int32)
         parent = np.empty(nb, np.int32)

@@ -4,7 +4,9 @@ Generalized coordinates (flat, `dof_count` = 3 N + 6 B):
   [0, 3N)            tissue node positions, node n at 3n..3n+2 [m]
   [3N, 3N + 6B)      rigid body b at body_dof0 + 6b: centre-of-mass position (3) [m], then the
                      rotation (3) [rad] as a world-frame left perturbation q <- exp(d) q.
-Bodies: the hand's bones first (bone_count, 16 for the hand), then rigid objects (object_count).
+Bodies: the hands' bones first (bone_count, 16 per hand), then rigid objects (object_count).
+Several hands: their union (physics/hands.py), hand after hand in nodes, tets and bones;
+model.hands (HandLayout) says where each lies. No term couples two hands.
 Public poses are bone-frame poses (n,7) [px,py,pz,qx,qy,qz,qw]; internally bodies live at their
 centre of mass: com_world = p + R com_local.
 
@@ -19,6 +21,7 @@ import numpy as np
 
 from softhand_sim.physics.energies import tissue, joints
 from softhand_sim.physics.energies.assembly import build_pattern, stencil_slots
+from softhand_sim.physics.hands import HandLayout, layout_of, union_asset
 from softhand_sim.physics.rotations import quat_to_matrix
 from softhand_sim.params import load_params
 
@@ -79,6 +82,7 @@ class Model:
     node_slots: np.ndarray         # (N,3,3) node diagonal blocks
     body_slots: np.ndarray         # (B,6,6) body diagonal blocks
     extra: dict = field(default_factory=dict)
+    hands: HandLayout = None       # where each hand's nodes, tets, bones, skin lie (physics/hands.py)
 
     @property
     def node_count(self):
@@ -114,6 +118,9 @@ def _get(asset, name, default):
 def build_model(asset, params=None, objects=()):
     """Model from a HandAsset (or any object with its fields) + parameters + rigid objects.
 
+    asset: one hand, or a list of hands (e.g. [right, left]): their union (physics/hands.py) is
+    one model, one energy; model.hands says where each hand lies.
+
     params: {sim_node key: value} overriding the schema's defaults (model_params), e.g.
     {"gravity_bones": True, "tracking_kx": 50.0}; Model.params keeps the full checked dict.
 
@@ -121,6 +128,9 @@ def build_model(asset, params=None, objects=()):
     scene.SceneObject); each becomes a body coupled by Eq. 14 to a target pose.
     """
     p = model_params(params)
+    if isinstance(asset, (list, tuple)):
+        asset = union_asset(asset)
+    layout = layout_of(asset)
     X = np.ascontiguousarray(asset.tet_nodes, dtype=np.float64)
     tets = np.ascontiguousarray(asset.tets, dtype=np.int32)
     N, T = len(X), len(tets)
@@ -142,8 +152,8 @@ def build_model(asset, params=None, objects=()):
     kx = np.full(B, p["object_kx"])
     kth = np.full(B, p["object_ktheta"])
     kx[:nb] = p["tracking_kx_phalanx"]
-    if nb:
-        kx[0] = p["tracking_kx"]
+    palms = layout.bone0[:-1][np.diff(layout.bone0) > 0]  # each hand's first bone
+    kx[palms] = p["tracking_kx"]
     kth[:nb] = p["tracking_ktheta"]
     gb = np.ones(B) * float(bool(p["gravity_objects"]))
     gb[:nb] = float(bool(p["gravity_bones"]))
@@ -208,7 +218,7 @@ def build_model(asset, params=None, objects=()):
         joint_slots=stencil_slots(indptr, indices, joint_st),
         sample_slots=stencil_slots(indptr, indices, sample_st),
         node_slots=stencil_slots(indptr, indices, node_dofs),
-        body_slots=stencil_slots(indptr, indices, body_dofs),
+        body_slots=stencil_slots(indptr, indices, body_dofs), hands=layout,
     )
     return model
 

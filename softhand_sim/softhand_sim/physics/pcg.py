@@ -29,7 +29,7 @@ class Factor:
 
     arrays: the tuple pcg() passes to ldlt_solve (the factor in use)."""
 
-    def __init__(self, n, indptr=None, indices=None, slice_flops=None, max_slices=50):
+    def __init__(self, n, indptr=None, indices=None, slice_flops=None, max_slices=50, groups=None):
         self.n = n
         self.valid = False
         self.sym = None
@@ -38,6 +38,7 @@ class Factor:
         self.arrays = (np.zeros(nb + 1, np.int32), e_i, e_f, np.tile(np.eye(3), (nb, 1, 1)),
                        np.arange(nb, dtype=np.int32), np.zeros(n))
         self.slice_flops, self.max_slices = slice_flops, max_slices
+        self.groups = groups  # block groups ordered apart (ldlt.grouped_order): one per hand
         if indptr is not None:
             self.analyse(indptr, indices)
 
@@ -45,7 +46,7 @@ class Factor:
         """Ordering, symbolic factorization and the slice boundaries (once per pattern)."""
         from softhand_sim.physics.ldlt import Symbolic
         self.indptr, self.indices = indptr, indices
-        self.sym = sym = Symbolic(indptr, indices, self.n)
+        self.sym = sym = Symbolic(indptr, indices, self.n, groups=self.groups)
         self.nnz = sym.nnz_L
         if self.slice_flops is None:
             # K minimizing F/K + c it(K) with it(K) ~ 1 + 4 log2 K (measured on the hands: 1, 5,

@@ -79,6 +79,18 @@ def skin_positions_kernel(x, tets, skin_tet, skin_bary, out):
             out[s, i] = acc
 
 
+def hand_block_groups(model):
+    """The 3x3 blocks of each hand (its nodes, then its bones' two blocks each) for the factor's
+    ordering (ldlt.grouped_order), or None for one hand (its ordering stays the one-hand one)."""
+    layout = model.hands
+    if layout is None or layout.count < 2:
+        return None
+    b0 = model.body_dof0 // 3
+    return [np.concatenate([np.arange(layout.node0[h], layout.node0[h + 1]),
+                            b0 + np.arange(2 * layout.bone0[h], 2 * layout.bone0[h + 1])])
+            for h in range(layout.count)]
+
+
 class Solver:
     """One-Newton-step implicit solver of the soft hand and its rigid objects.
 
@@ -111,7 +123,8 @@ class Solver:
         self.refactor_iters = int(p["factor_refresh_iterations"])
         if self.refactor_every < 1:
             raise ValueError(f"factor_refresh_steps={self.refactor_every}: must be >= 1")
-        self.factor = (pcg_mod.Factor(model.dof_count, m.indptr, m.indices, max_slices=self.refactor_every)
+        self.factor = (pcg_mod.Factor(model.dof_count, m.indptr, m.indices, max_slices=self.refactor_every,
+                                      groups=hand_block_groups(m))
                        if self.precond == pcg_mod.PRECOND_FACTOR else pcg_mod.Factor(model.dof_count))
         self._last_iters = 0
         n, nnz = m.dof_count, len(m.indices)

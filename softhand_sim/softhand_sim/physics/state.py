@@ -37,8 +37,12 @@ class State:
 
     @property
     def bone_pose(self):
-        """(16,7) bone-frame poses of the hand's bones."""
+        """(bone_count,7) bone-frame poses of the bones of every hand (16 per hand, model.hands order)."""
         return self.body_pose[:self.bone_count]
+
+    def hand_bone_pose(self, model, hand):
+        """(16,7) bone-frame poses of hand `hand` (index into model.hands)."""
+        return self.body_pose[model.hands.bones(hand)]
 
     @property
     def object_pose(self):

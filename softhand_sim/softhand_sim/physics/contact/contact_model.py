@@ -35,6 +35,9 @@ class ContactModel:
     point_bary: np.ndarray    # (P,4) weights
     point_bary_body: np.ndarray  # (P,4) weights used against dynamic objects (see body_weights)
     point_area: np.ndarray    # (P,) [m^2]
+    point_hand: np.ndarray    # (P,) i4 hand index (model.hands) of each skin point
+    hand_point0: np.ndarray   # (H+1,) i8 the points of hand h are hand_point0[h]:hand_point0[h+1]
+    hand_code: np.ndarray     # (H,) u1 the contacts' `hand` field per hand: 0 right, 1 left
     object_names: list        # (O,) scene object names, then "ground"
     obj_kind: np.ndarray      # (O,) i4 KIND_GRID / KIND_HALFSPACE
     obj_body: np.ndarray      # (O,) i4 solver body, -1 static
@@ -58,6 +61,10 @@ class ContactModel:
         return self.point_nodes.shape[0]
 
     @property
+    def hand_count(self):
+        return self.hand_point0.shape[0] - 1
+
+    @property
     def object_count(self):
         return self.obj_kind.shape[0]
 
@@ -74,6 +81,26 @@ def body_weights(model, nodes, bary):
     w = np.where(coupled[nodes], bary, 0.0)
     total = w.sum(axis=1, keepdims=True)
     return np.ascontiguousarray(np.where(total > 0.0, w / np.maximum(total, 1e-300), bary))
+
+
+def hand_of_points(model, nodes):
+    """(point_hand (P,) i4, hand_point0 (H+1,) i8): the hand of each skin point (the hand owning
+    its tet's nodes, model.hands) and where each hand's points start. The points come hand after
+    hand (skin_points keeps the model's node order), which the per-hand broad phase relies on."""
+    layout = getattr(model, "hands", None)
+    node0 = np.asarray(layout.node0 if layout is not None else [0, model.node_count], np.int64)
+    hand = (np.searchsorted(node0, np.asarray(nodes, np.int64)[:, 0], side="right") - 1).astype(np.int32)
+    if np.any(np.diff(hand) < 0):
+        raise ValueError("skin points are not ordered hand after hand")
+    return hand, np.searchsorted(hand, np.arange(len(node0)), side="left").astype(np.int64)
+
+
+def hand_codes(model, count):
+    """(H,) u1 the `hand` code of each hand (physics/hands.HAND_CODE; right when unknown)."""
+    layout = getattr(model, "hands", None)
+    if layout is None:
+        return np.zeros(count, np.uint8)
+    return np.array([layout.code(h) for h in range(count)], np.uint8)
 
 
 def skin_points(model, asset=None, points="surface"):
@@ -142,9 +169,11 @@ def build_contact_model(model, scene, asset=None, points="surface", kn=3.0e7, kf
     adr = np.stack([ends - sizes, ends], axis=1).astype(np.int64)
     values = (np.concatenate([g.values for g in grid_list if g is not None]) if any(sizes)
               else np.zeros(1, np.float32))
+    point_hand, hand_point0 = hand_of_points(model, nodes)
     return ContactModel(
         point_nodes=nodes, point_bary=bary, point_bary_body=body_weights(model, nodes, bary),
-        point_area=area, object_names=names,
+        point_area=area, point_hand=point_hand, hand_point0=hand_point0,
+        hand_code=hand_codes(model, len(hand_point0) - 1), object_names=names,
         obj_kind=np.array(kind, np.int32), obj_body=np.array(body, np.int32),
         obj_pose=np.array(pose, float), obj_com=np.array(com, float), obj_lo=np.array(lo, float),
         obj_hi=np.array(hi, float), obj_mu=np.array(mu, float), grid_values=values, grid_adr=adr,

@@ -121,26 +121,34 @@ def _moving_away(p, b, point_nodes, point_bary, v, body_x, body_dof0, point_x, a
 
 @njit(cache=True)
 def collide_kernel(node_x, body_x, body_q, v, body_dof0, point_nodes, point_bary_static,
-                   point_bary_body, point_area,
+                   point_bary_body, point_area, hand_point0, hand_enabled,
                    obj_kind, obj_body, obj_pose, obj_com, obj_lo, obj_hi, obj_mu,
                    grid_values, grid_adr, grid_origin, grid_voxel, grid_dims, ground_h, kn, kf,
                    anchor, normal, active, slip, obj_active, point_x_static, point_x_body,
                    c_point, c_object, c_nodes, c_bary, c_body, c_anchor, c_normal, c_area, c_mu, c_slip):
-    """One detection pass; returns (active contact count, contacts dropped for lack of capacity)."""
-    P = point_nodes.shape[0]
-    lo = np.full(3, np.inf)   # bounding box of all skin points, for the per-object broad phase
-    hi = np.full(3, -np.inf)
-    for p in range(P):
-        for i in range(3):
-            s = 0.0
-            sb = 0.0
-            for a in range(4):
-                s += point_bary_static[p, a] * node_x[point_nodes[p, a], i]
-                sb += point_bary_body[p, a] * node_x[point_nodes[p, a], i]
-            point_x_static[p, i] = s
-            point_x_body[p, i] = sb
-            lo[i] = min(lo[i], s, sb)
-            hi[i] = max(hi[i], s, sb)
+    """One detection pass; returns (active contact count, contacts dropped for lack of capacity).
+
+    Hands: the points of hand h are hand_point0[h]:hand_point0[h+1]; a hand with hand_enabled[h]
+    == 0 (not in the simulation yet) has no contact. The broad phase is per hand (each hand's
+    bounding box against each object), so a second hand far away costs a one-hand pass.
+    obj_active (O, H): active contacts per object and hand."""
+    H = hand_point0.shape[0] - 1
+    lo = np.full((H, 3), np.inf)   # bounding box of each hand's skin points, for the broad phase
+    hi = np.full((H, 3), -np.inf)
+    for h in range(H):
+        if hand_enabled[h] == 0:
+            continue
+        for p in range(hand_point0[h], hand_point0[h + 1]):
+            for i in range(3):
+                s = 0.0
+                sb = 0.0
+                for a in range(4):
+                    s += point_bary_static[p, a] * node_x[point_nodes[p, a], i]
+                    sb += point_bary_body[p, a] * node_x[point_nodes[p, a], i]
+                point_x_static[p, i] = s
+                point_x_body[p, i] = sb
+                lo[h, i] = min(lo[h, i], s, sb)
+                hi[h, i] = max(hi[h, i], s, sb)
     capacity = c_point.shape[0]
     count = 0
     dropped = 0
@@ -167,78 +175,82 @@ def collide_kernel(node_x, body_x, body_q, v, body_dof0, point_nodes, point_bary
         # object bodies (contact_model.body_weights), static ones through all four
         point_x = point_x_body if b >= 0 else point_x_static
         point_bary = point_bary_body if b >= 0 else point_bary_static
-        if obj_active[o] == 0:  # nothing to release: skip objects away from the hand's box
-            if kind == KIND_HALFSPACE:
-                if lo[2] >= ground_h:
-                    continue
-            else:
-                r = np.sqrt(radius2)
-                if (lo[0] > centre_w[0] + r or hi[0] < centre_w[0] - r or lo[1] > centre_w[1] + r
-                        or hi[1] < centre_w[1] - r or lo[2] > centre_w[2] + r or hi[2] < centre_w[2] - r):
-                    continue
-        obj_active[o] = 0
-        for p in range(P):
-            was = active[o, p] != 0
-            if kind == KIND_GRID and not was:  # broad phase: bounding sphere, then local box
-                dx = point_x[p, 0] - centre_w[0]
-                dy = point_x[p, 1] - centre_w[1]
-                dz = point_x[p, 2] - centre_w[2]
-                if dx * dx + dy * dy + dz * dz > radius2:
-                    continue
-            for i in range(3):
-                local[i] = (R[0, i] * (point_x[p, 0] - origin[0]) + R[1, i] * (point_x[p, 1] - origin[1])
-                            + R[2, i] * (point_x[p, 2] - origin[2]))
-            if kind == KIND_GRID and not was:
-                if (local[0] < obj_lo[o, 0] or local[1] < obj_lo[o, 1] or local[2] < obj_lo[o, 2]
-                        or local[0] > obj_hi[o, 0] or local[1] > obj_hi[o, 1] or local[2] > obj_hi[o, 2]):
-                    continue
-            d = _distance(kind, adr, vals, gorg, gvox, gdim, ground_h, local)
-            if d >= 0.0:
-                active[o, p] = 0
-                slip[o, p] = 0
+        for h in range(H):
+            if hand_enabled[h] == 0:
                 continue
-            if not was:
-                _project(kind, adr, vals, gorg, gvox, gdim, ground_h, local, a_new, n_new)
-                anchor[o, p] = a_new
-                normal[o, p] = n_new
-                active[o, p] = 1
-                slip[o, p] = 0
-            else:
-                a_new[:] = anchor[o, p]
-                n_new[:] = normal[o, p]
-                if _clamp_to_cone(local, a_new, n_new, mu, kn, kf):
-                    # slid: back onto the surface, normal there, then the cone once more
-                    _project(kind, adr, vals, gorg, gvox, gdim, ground_h, a_new, a_new, n_new)
-                    _clamp_to_cone(local, a_new, n_new, mu, kn, kf)
-                    slip[o, p] = SLIP
-                    if _moving_away(p, b, point_nodes, point_bary, v, body_x, body_dof0, point_x,
-                                    origin + R @ a_new):
-                        slip[o, p] = SLIDING
+            if obj_active[o, h] == 0:  # nothing to release: skip objects away from the hand's box
+                if kind == KIND_HALFSPACE:
+                    if lo[h, 2] >= ground_h:
+                        continue
                 else:
-                    slip[o, p] = 0
-                anchor[o, p] = a_new
-                normal[o, p] = n_new
-            obj_active[o] += 1
-            if count >= capacity:
-                dropped += 1
-                continue
-            c = count
-            count += 1
-            c_point[c] = p
-            c_object[c] = o
-            c_nodes[c] = point_nodes[p]
-            c_bary[c] = point_bary[p]
-            c_area[c] = point_area[p]
-            c_mu[c] = mu
-            c_slip[c] = slip[o, p]
-            c_body[c] = b
-            if b >= 0:  # body axes, relative to the COM
+                    r = np.sqrt(radius2)
+                    if (lo[h, 0] > centre_w[0] + r or hi[h, 0] < centre_w[0] - r or lo[h, 1] > centre_w[1] + r
+                            or hi[h, 1] < centre_w[1] - r or lo[h, 2] > centre_w[2] + r
+                            or hi[h, 2] < centre_w[2] - r):
+                        continue
+            obj_active[o, h] = 0
+            for p in range(hand_point0[h], hand_point0[h + 1]):
+                was = active[o, p] != 0
+                if kind == KIND_GRID and not was:  # broad phase: bounding sphere, then local box
+                    dx = point_x[p, 0] - centre_w[0]
+                    dy = point_x[p, 1] - centre_w[1]
+                    dz = point_x[p, 2] - centre_w[2]
+                    if dx * dx + dy * dy + dz * dz > radius2:
+                        continue
                 for i in range(3):
-                    c_anchor[c, i] = anchor[o, p, i] - obj_com[o, i]
-                    c_normal[c, i] = normal[o, p, i]
-            else:  # world frame
-                c_anchor[c] = origin + R @ anchor[o, p]
-                c_normal[c] = R @ normal[o, p]
+                    local[i] = (R[0, i] * (point_x[p, 0] - origin[0]) + R[1, i] * (point_x[p, 1] - origin[1])
+                                + R[2, i] * (point_x[p, 2] - origin[2]))
+                if kind == KIND_GRID and not was:
+                    if (local[0] < obj_lo[o, 0] or local[1] < obj_lo[o, 1] or local[2] < obj_lo[o, 2]
+                            or local[0] > obj_hi[o, 0] or local[1] > obj_hi[o, 1] or local[2] > obj_hi[o, 2]):
+                        continue
+                d = _distance(kind, adr, vals, gorg, gvox, gdim, ground_h, local)
+                if d >= 0.0:
+                    active[o, p] = 0
+                    slip[o, p] = 0
+                    continue
+                if not was:
+                    _project(kind, adr, vals, gorg, gvox, gdim, ground_h, local, a_new, n_new)
+                    anchor[o, p] = a_new
+                    normal[o, p] = n_new
+                    active[o, p] = 1
+                    slip[o, p] = 0
+                else:
+                    a_new[:] = anchor[o, p]
+                    n_new[:] = normal[o, p]
+                    if _clamp_to_cone(local, a_new, n_new, mu, kn, kf):
+                        # slid: back onto the surface, normal there, then the cone once more
+                        _project(kind, adr, vals, gorg, gvox, gdim, ground_h, a_new, a_new, n_new)
+                        _clamp_to_cone(local, a_new, n_new, mu, kn, kf)
+                        slip[o, p] = SLIP
+                        if _moving_away(p, b, point_nodes, point_bary, v, body_x, body_dof0, point_x,
+                                        origin + R @ a_new):
+                            slip[o, p] = SLIDING
+                    else:
+                        slip[o, p] = 0
+                    anchor[o, p] = a_new
+                    normal[o, p] = n_new
+                obj_active[o, h] += 1
+                if count >= capacity:
+                    dropped += 1
+                    continue
+                c = count
+                count += 1
+                c_point[c] = p
+                c_object[c] = o
+                c_nodes[c] = point_nodes[p]
+                c_bary[c] = point_bary[p]
+                c_area[c] = point_area[p]
+                c_mu[c] = mu
+                c_slip[c] = slip[o, p]
+                c_body[c] = b
+                if b >= 0:  # body axes, relative to the COM
+                    for i in range(3):
+                        c_anchor[c, i] = anchor[o, p, i] - obj_com[o, i]
+                        c_normal[c, i] = normal[o, p, i]
+                else:  # world frame
+                    c_anchor[c] = origin + R @ anchor[o, p]
+                    c_normal[c] = R @ normal[o, p]
     return count, dropped
 
 
@@ -262,7 +274,8 @@ class ContactSystem:
         self.slip_state = np.zeros((O, P), np.uint8)
         self._point_x = np.zeros((P, 3))
         self._point_x_body = np.zeros((P, 3))
-        self._obj_active = np.zeros(O, np.int64)  # active contacts per object
+        self._obj_active = np.zeros((O, cmodel.hand_count), np.int64)  # active contacts per object and hand
+        self.hand_enabled = np.ones(cmodel.hand_count, np.uint8)  # 0: the hand has no contact (not entered)
         C = int(capacity)
         self.point = np.zeros(C, np.int32)
         self.object = np.zeros(C, np.int32)
@@ -279,11 +292,19 @@ class ContactSystem:
         self.collision_ms = 0.0
         self.skipped_entries = 0
 
-    def reset(self):
-        self.active[:] = 0
-        self.slip_state[:] = 0
-        self._obj_active[:] = 0
-        self.count = 0
+    def reset(self, hand=None):
+        """Forget every contact (hand=None), or only hand `hand`'s (its points' anchors; the next
+        collide rebuilds the active list)."""
+        if hand is None:
+            self.active[:] = 0
+            self.slip_state[:] = 0
+            self._obj_active[:] = 0
+            self.count = 0
+            return
+        p = slice(int(self.model.hand_point0[hand]), int(self.model.hand_point0[hand + 1]))
+        self.active[:, p] = 0
+        self.slip_state[:, p] = 0
+        self._obj_active[:, hand] = 0
 
     def collide(self, node_x, body_x, body_q, v=None, body_dof0=None):
         """Detect, update anchors (stick/slip), build the active list; returns the count.
@@ -297,7 +318,7 @@ class ContactSystem:
         t0 = time.perf_counter()
         self.count, self.dropped = collide_kernel(
             node_x, body_x, body_q, v, body_dof0, m.point_nodes, m.point_bary, m.point_bary_body,
-            m.point_area,
+            m.point_area, m.hand_point0, self.hand_enabled,
             m.obj_kind, m.obj_body, m.obj_pose, m.obj_com, m.obj_lo, m.obj_hi, m.obj_mu,
             m.grid_values, m.grid_adr, m.grid_origin, m.grid_voxel, m.grid_dims, m.ground_height,
             m.kn, m.kf, self.anchor, self.normal, self.active, self.slip_state, self._obj_active,
@@ -336,7 +357,8 @@ class ContactSystem:
     def output(self, node_x, body_x, body_q, cap_friction=True):
         """Per active contact: dict of points (C,3) [m], normals (C,3), forces on the hand (C,3) [N]
         = force_normal + force_friction, objects (C,) u4 (index into model.object_names; the
-        ground is the last), slip (C,) u1 (1: the anchor slid at the last update), point (C,) i4.
+        ground is the last), slip (C,) u1 (1: the anchor slid at the last update), point (C,) i4,
+        hand (C,) u1 (0 right, 1 left: docs/INTERFACE.md's `hand` field).
         Called after a step, the friction force is the one the next anchor update leaves (capped
         at mu |f_n|; cap_friction=False gives the raw spring force): the anchors move only in
         collide()."""
@@ -351,7 +373,8 @@ class ContactSystem:
             ff *= scale[:, None]
         return {"points": pts, "normals": nrm, "forces": fn + ff, "force_normal": fn,
                 "force_friction": ff, "objects": self.object[:c].astype(np.uint32),
-                "slip": (self.slip[:c] > 0).astype(np.uint8), "point": self.point[:c].copy()}
+                "slip": (self.slip[:c] > 0).astype(np.uint8), "point": self.point[:c].copy(),
+                "hand": self.model.hand_code[self.model.point_hand[self.point[:c]]]}
 
 
 def build_contact_system(model, scene, asset=None, points="auto", kn=None, kf=None, capacity=8192, **kwargs):
