@@ -114,11 +114,12 @@ class _SelfContact:
         self._smodel = None
 
     def self_contacts(self, model):
+        from softhand_sim.handmodel.rigid_skin import skin_segments
         from softhand_sim.physics.contact import self_contact
         if getattr(self.asset, "skin_triangles", None) is None:
             raise ValueError("self contact needs the hand model (--mesh coarse or fine)")
         if self._smodel is None:
-            self._smodel = self_contact.build_self_contact_system(model, self.asset).model
+            self._smodel = self_contact.build_self_contact_system(model, self.asset, skin_segments(self.asset)).model
         return self_contact.SelfContactSystem(self._smodel, model, int(model.params["self_contact_capacity"]))
 
 

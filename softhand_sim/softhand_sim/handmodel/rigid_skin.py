@@ -70,3 +70,14 @@ class RigidSkin:
     def on_bones(self, bones):
         """Boolean mask (n,) of the skin vertices that follow any of `bones`."""
         return np.isin(self.bone_of, list(bones))
+
+
+def skin_segments(asset, body_offset=0):
+    """(point_segment (V,), segment_body (16,), adjacent pairs) of one hand asset, for skin-skin
+    contact (physics/contact/self_contact.py): each skin vertex in the segment of its nearest bone
+    axis (RigidSkin), segments = bones (at model bodies body_offset + bone), adjacency = the
+    skeleton's joints."""
+    nb = len(asset.bone_rest_pose)
+    seg = RigidSkin(asset).bone_of.astype(np.int32)
+    adjacent = list(zip(np.asarray(asset.joint_parent).tolist(), np.asarray(asset.joint_child).tolist()))
+    return seg, np.arange(nb, dtype=np.int32) + body_offset, adjacent

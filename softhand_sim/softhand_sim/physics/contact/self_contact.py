@@ -551,20 +551,10 @@ class SelfContactSystem:
                 "depth": depth}
 
 
-def hand_segments(asset, body_offset=0):
-    """(point_segment (V,), segment_body (16,), adjacent pairs) of one hand asset: each skin
-    vertex in the segment of its nearest bone axis (handmodel.rigid_skin), segments = bones (at
-    model bodies body_offset + bone), adjacency = the skeleton's joints."""
-    from softhand_sim.handmodel.rigid_skin import RigidSkin
-    nb = len(asset.bone_rest_pose)
-    seg = RigidSkin(asset).bone_of.astype(np.int32)
-    adjacent = list(zip(np.asarray(asset.joint_parent).tolist(), np.asarray(asset.joint_child).tolist()))
-    return seg, np.arange(nb, dtype=np.int32) + body_offset, adjacent
-
-
-def build_self_contact_system(model, asset, kn=None, kf=None, mu=None, capacity=None, **kwargs):
+def build_self_contact_system(model, asset, segments, kn=None, kf=None, mu=None, capacity=None, **kwargs):
     """The SelfContactSystem of one hand (model built from asset), for
-    Solver(model, self_contacts=...). kn, kf default to the model's self_contact_kn / self_contact_kf, mu to
+    Solver(model, self_contacts=...). segments: (point_segment (V,), segment_body, adjacent pairs) of
+    the hand's skin, e.g. handmodel.rigid_skin.skin_segments(asset). kn, kf default to the model's self_contact_kn / self_contact_kf, mu to
     its self_contact_friction, capacity to self_contact_capacity; kwargs go to
     build_self_contact_model (rest_clearance, voxel, margin).
 
@@ -572,7 +562,7 @@ def build_self_contact_system(model, asset, kn=None, kf=None, mu=None, capacity=
     triangles (the second hand's offset by the first's point count), segments (the second
     hand's offset by 16, bodies by its first bone) and both skeletons' adjacency."""
     p = model.params
-    seg, segb, adjacent = hand_segments(asset)
+    seg, segb, adjacent = segments
     kn = float(p["self_contact_kn"]) if kn is None else kn
     kf = float(p["self_contact_kf"]) if kf is None else kf
     mu = float(p["self_contact_friction"]) if mu is None else mu
