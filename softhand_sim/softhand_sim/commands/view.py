@@ -21,94 +21,8 @@ import os
 import signal
 import sys
 import threading
-import time
 
-DEFAULT_HOST = "127.0.0.1"
-DEFAULT_PORT = 8765
-#: Topics not forwarded by default: the full-resolution skin cloud is heavy and off by default.
-SKIPPED_BY_DEFAULT = ("/hand/skin_vertices",)
-
-
-def default_topics():
-    """topic -> ROS type of every softhand topic a viewer shows (docs/INTERFACE.md)."""
-    from softhand_sim.ros.common import TOPIC_TYPES
-
-    return {t: ty for t, ty in TOPIC_TYPES.items() if t not in SKIPPED_BY_DEFAULT}
-
-
-def ros2msg_schema(msgtype: str) -> bytes:
-    """The ros2msg definition text of `pkg/msg/Name` with its dependencies (what rosbag2 and
-    foxglove_bridge send as a channel schema), from rosbags' Jazzy type store."""
-    from rosbags.typesys import Stores, get_typestore
-
-    text, _ = get_typestore(Stores.ROS2_JAZZY).generate_msgdef(msgtype, ros_version=2)
-    return text.encode()
-
-
-class TopicForwarder:
-    """Forwards ROS topics to Foxglove channels: CDR bytes in, the same bytes out.
-
-    topics: topic -> ROS type name. Each topic gets a Foxglove channel with message encoding
-    'cdr' and schema (name = ROS type, encoding 'ros2msg'). Subscriptions are best effort
-    (they match reliable and best-effort publishers alike), transient local for latched topics.
-    `counts` holds the messages forwarded per topic.
-    """
-
-    def __init__(self, node, topics, context=None):
-        import foxglove
-        from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
-
-        from softhand_sim.ros.common import LATCHED_QOS, LATCHED_TOPICS, message_class
-
-        view_qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=5,
-                              reliability=ReliabilityPolicy.BEST_EFFORT, durability=DurabilityPolicy.VOLATILE)
-        self.node = node
-        self.counts = {t: 0 for t in topics}
-        self.channels = {}
-        for topic, msgtype in topics.items():
-            schema = foxglove.Schema(name=msgtype, encoding="ros2msg", data=ros2msg_schema(msgtype))
-            channel = foxglove.Channel(topic, schema=schema, message_encoding="cdr", context=context)
-            self.channels[topic] = channel
-            node.create_subscription(message_class(msgtype), topic, self._forward(topic, channel),
-                                     LATCHED_QOS if topic in LATCHED_TOPICS else view_qos, raw=True)
-
-    def _forward(self, topic, channel):
-        def on_message(raw: bytes):
-            self.counts[topic] += 1
-            channel.log(bytes(raw), log_time=time.time_ns())
-        return on_message
-
-
-def serve(topics, host=DEFAULT_HOST, port=DEFAULT_PORT, ready=None, stop=None, say=print):
-    """Run the viewer until `stop` (threading.Event) is set or SIGINT; returns the forwarded counts.
-
-    ready: an optional callback(server) called once the server listens (tests read the port).
-    """
-    import foxglove
-    import rclpy
-    from rclpy.executors import ExternalShutdownException
-
-    context = foxglove.Context()
-    server = foxglove.start_server(name="softhand", host=host, port=port, context=context)
-    rclpy.init(args=[])
-    node = rclpy.create_node("softhand_view")
-    forwarder = TopicForwarder(node, topics, context=context)
-    say(f"softhand view: serving {len(topics)} topics on ws://{host}:{server.port} "
-        f"(ROS_DOMAIN_ID={os.environ.get('ROS_DOMAIN_ID', '0')}); in the Foxglove app: Open connection -> "
-        f"Foxglove WebSocket -> ws://localhost:{server.port}; Ctrl-C stops")
-    if ready is not None:
-        ready(server)
-    stop = stop or threading.Event()
-    try:
-        while not stop.is_set() and rclpy.ok():
-            rclpy.spin_once(node, timeout_sec=0.1)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        server.stop()
-        node.destroy_node()
-        rclpy.try_shutdown()
-    return dict(forwarder.counts)
+from softhand_sim.ros.foxglove import DEFAULT_HOST, DEFAULT_PORT  # no rclpy at import
 
 
 def build_parser():
@@ -133,6 +47,7 @@ def build_parser():
 def main(argv=None):
     args = build_parser().parse_args(argv)
     from softhand_sim.ros.common import TOPIC_TYPES
+    from softhand_sim.ros.foxglove import default_topics, serve  # rclpy from here on
 
     topics = default_topics()
     if args.topics:
