@@ -37,6 +37,7 @@ from softhand_sim.commands.demo import ProcessSet, console_script
 from softhand_sim.commands.run_summary import summarize_run
 from softhand_sim.paths import bags_dir
 from softhand_sim.ros.env import isolated_env, pick_domain_id, release_domain_id
+from softhand_sim.ros.msgs import status_node
 from tests.support import netns
 
 # timeout: the first test to run sets the hosts up and runs every phase (~8 min on 2 loaded cores)
@@ -103,7 +104,7 @@ def diag_rows(bag, node):
     rows = []
     for _t, _n, m in bag.get("/diagnostics", []):
         for st in m.status:
-            if st.name == node:
+            if status_node(st.name) == node:
                 rows.append((stamp_s(m), {kv.key: kv.value for kv in st.values}))
     return sorted(rows, key=lambda r: r[0])
 

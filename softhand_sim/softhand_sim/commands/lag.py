@@ -169,6 +169,8 @@ def read_run(path):
     from rosbags.rosbag2 import Reader
     from rosbags.typesys import Stores, get_typestore
 
+    from softhand_sim.ros.msgs import status_node
+
     path = Path(path)
     if (path / "bag" / "metadata.yaml").is_file():
         path = path / "bag"
@@ -181,7 +183,7 @@ def read_run(path):
             msg = store.deserialize_cdr(raw, conn.msgtype)
             if conn.topic == "/diagnostics":
                 for status in msg.status:
-                    if status.name == "tracking_node":
+                    if status_node(status.name) == "tracking_node":
                         values = {kv.key: kv.value for kv in status.values}
                         for key in ("frames_received", "frames_accepted", "frames_rejected"):
                             if key in values:

@@ -85,6 +85,8 @@ def _published_frames(play_log):
 
 
 def summarize_run(bag_dir, bag_name="", exit_codes=None, input_bag=None, play_log=None):
+    from softhand_sim.ros.msgs import status_node  # ROS message packages only when reading a run
+
     bag_dir = Path(bag_dir)
     summary = {"bag": bag_name, "exit_codes": exit_codes or {}}
     if not bag_dir.exists():
@@ -124,12 +126,12 @@ def summarize_run(bag_dir, bag_name="", exit_codes=None, input_bag=None, play_lo
                     ball_z.append(msg.points[0].transforms[names.index(LIFT_OBJECT)].translation.z)
             elif conn.topic == "/diagnostics":
                 for status in msg.status:
-                    if status.name == "tracking_node":  # the last report holds the final counts
+                    if status_node(status.name) == "tracking_node":  # the last report holds the final counts
                         values = {kv.key: kv.value for kv in status.values}
                         for key in ("frames_received", "frames_accepted", "frames_rejected"):
                             if key in values:
                                 tracking_counts[key.removeprefix("frames_")] = int(float(values[key]))
-                    if "sim" in status.name:
+                    if status_node(status.name) == "sim_node":
                         values = {kv.key: kv.value for kv in status.values}
                         try:
                             p50, p99 = float(values["step_ms_p50"]), float(values["step_ms_p99"])

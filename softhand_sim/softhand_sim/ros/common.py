@@ -30,7 +30,8 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from rclpy.utilities import remove_ros_args
 
 from softhand_sim.params import ParamError
-from softhand_sim.ros.msgs import diagnostic_array, diagnostic_status
+from softhand_sim.ros.msgs import (DIAGNOSTIC_TASKS, diagnostic_array, diagnostic_name,  # noqa: F401
+                                  diagnostic_status, status_node)
 
 # ------------------------------------------------------------------------------------------- QoS
 
@@ -150,22 +151,6 @@ class RejectionLog:
 
 
 # ---------------------------------------------------------------------------------- diagnostics
-
-
-# What each node's status is about: diagnostic_updater's convention names a status
-# '<node>: <task>' and gives it a hardware id.
-DIAGNOSTIC_TASKS = {"sim_node": "simulation", "tracking_node": "tracking loop", "world_node": "engine",
-                    "record_node": "recorder", "play_node": "replay"}
-
-
-def diagnostic_name(node_name: str, task: Optional[str] = None) -> str:
-    """'<node>: <task>' (the diagnostic_updater convention), e.g. 'sim_node: simulation'."""
-    return f"{node_name}: {task or DIAGNOSTIC_TASKS.get(node_name, 'status')}"
-
-
-def status_node(name: str) -> str:
-    """The node part of a status name '<node>: <task>' (the whole name if it has no task)."""
-    return name.split(":", 1)[0].strip()
 
 
 class DiagnosticsPublisher:

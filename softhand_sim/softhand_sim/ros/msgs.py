@@ -505,6 +505,22 @@ def _format_value(value) -> str:
     return str(value)
 
 
+# What each node's status is about: diagnostic_updater's convention names a status
+# '<node>: <task>' and gives it a hardware id.
+DIAGNOSTIC_TASKS = {"sim_node": "simulation", "tracking_node": "tracking loop", "world_node": "engine",
+                    "record_node": "recorder", "play_node": "replay"}
+
+
+def diagnostic_name(node_name: str, task: str | None = None) -> str:
+    """'<node>: <task>' (the diagnostic_updater convention), e.g. 'sim_node: simulation'."""
+    return f"{node_name}: {task or DIAGNOSTIC_TASKS.get(node_name, 'status')}"
+
+
+def status_node(name: str) -> str:
+    """The node part of a status name '<node>: <task>' (the whole name if it has no task)."""
+    return name.split(":", 1)[0].strip()
+
+
 def diagnostic_status(name: str, values: Mapping, level="ok", message: str = "",
                       hardware_id: str = "") -> DiagnosticStatus:
     """DiagnosticStatus from a dict key -> value (floats with 6 significant digits); level ok|warn|error|stale."""
