@@ -13,12 +13,14 @@ from tests.support.rosproc import RosGraph
 from softhand_sim.ros import msgs as rm
 from softhand_sim.paths import bags_dir
 from softhand_sim.ros.common import status_node
+from softhand_sim.scene import load_scene
 
 # Timing over real DDS between processes on a shared 2-core machine: one retry absorbs a stall.
 pytestmark = [pytest.mark.ros, pytest.mark.slow, pytest.mark.flaky(reruns=1, reruns_delay=2)]
 
 DIAG = ["--ros-args", "-p", "diagnostics_rate:=4.0"]  # faster status: shorter waits
-OBJECTS = "ball,mug,small_box"
+# every dynamic object of the scene (the hand keeps a copy of each)
+OBJECTS = ",".join(sorted(o.name for o in load_scene().dynamic_objects))
 
 
 class Status:
