@@ -19,7 +19,7 @@ ARGS = ["--ros-args", "-p", "diagnostics_rate:=4.0"]
 def latest(col, name):
     for m in reversed(col.msgs):
         for st in m.status:
-            if st.name == name:
+            if rm.status_node(st.name) == name:
                 return rm.diagnostic_values(st)
     return None
 
@@ -52,7 +52,7 @@ def test_sim_node_sizes_the_hand_on_the_first_second(ros_env):
         print("sim_node after sizing:", {k: v[k] for k in ("hand_measures_source", "hand_length_mm", "palm_length_mm",
                                                            "palm_width_mm", "steps")}, "expected", round(expected, 1))
         building = [rm.diagnostic_values(st) for m in diag.msgs for st in m.status
-                    if st.name == "sim_node" and rm.diagnostic_values(st).get("hand_size_state") == "building"]
+                    if rm.status_node(st.name) == "sim_node" and rm.diagnostic_values(st).get("hand_size_state") == "building"]
         print(f"{len(building)} sim_node /diagnostics while the hand was being made (4 Hz)")
         assert len(building) >= 2  # the node kept spinning while the worker made the hand
         assert v["hand_measures_source"] == "auto"
