@@ -139,9 +139,9 @@ def check_press(bag_dir):
     assert 0.5 < fmax < 50.0, f"total contact force {fmax:.2f} N"
 
 
-def test_demo_command_end_to_end(tmp_path):
+def test_demo_command_end_to_end(grasp_short_run):
     """`softhand demo` on the short bag writes the bag, summary.json and the preview pictures."""
-    out, summary, stdout = run_demo(tmp_path, "grasp_short", preview=True)
+    out, summary, stdout = grasp_short_run
     assert (out / "bag" / "metadata.yaml").is_file()
     assert (out / "preview.png").stat().st_size > 10_000 and (out / "preview.gif").is_file()
     assert "sim step" in stdout and "latency" in stdout and "tracker frames" in stdout

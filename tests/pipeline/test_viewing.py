@@ -1,15 +1,12 @@
 """Viewing a run (README "Viewing a run"): the demo's recording holds what the Foxglove layout shows.
 
-One `softhand demo` run of the short grasp bag, then: the contact force arrows and the total-force
+One `softhand demo` run of the short grasp bag (shared with test_demo_nodes), then: the contact force arrows and the total-force
 label are recorded, the scene markers draw the table and the ground, every plot path of
 docs/foxglove/softhand_layout.json yields numbers from the recording (the contact force rises above
 zero while the hand holds the ball), and the preview pictures are written.
 """
 import json
 import re
-import subprocess
-import sys
-from pathlib import Path
 
 import pytest
 from visualization_msgs.msg import Marker
@@ -19,7 +16,6 @@ from softhand_sim.ros import msgs as rm
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow, pytest.mark.flaky(reruns=1, reruns_delay=2)]
 
-SOFTHAND = str(Path(sys.executable).parent / "softhand")
 _STEP = re.compile(r'\.(\w+)|\[:\]|\{(\w+)=="([^"]*)"\}')
 
 
@@ -52,12 +48,8 @@ def read_topic(bag_dir, topic):
         return [store.deserialize_cdr(raw, c.msgtype) for c, _, raw in reader.messages(connections=conns)]
 
 
-def test_demo_recording_shows_in_the_foxglove_layout(tmp_path, repo_root):
-    out = tmp_path / "run"
-    proc = subprocess.run([SOFTHAND, "demo", "--bag", "grasp_short", "--out", str(out)],
-                          capture_output=True, text=True, timeout=900)
-    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
-    check_run_for_viewing(out, repo_root)
+def test_demo_recording_shows_in_the_foxglove_layout(grasp_short_run, repo_root):
+    check_run_for_viewing(grasp_short_run[0], repo_root)
 
 
 def check_run_for_viewing(out, repo_root):
