@@ -70,7 +70,8 @@ class DiagnosticsWatch:
         from rclpy.context import Context
         from rclpy.executors import SingleThreadedExecutor
 
-        from softhand_sim.ros.common import PUB_QOS, status_node
+        from softhand_sim.ros.common import PUB_QOS
+        from softhand_sim.ros.msgs import status_node
 
         self._rclpy = rclpy
         self._status_node = status_node

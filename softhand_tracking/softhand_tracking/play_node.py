@@ -293,53 +293,30 @@ class PlayNode(Node):
     def play(self) -> None:
         """Replay (forever with loop); returns when done or when ROS shuts down."""
         if self.raw_pubs is not None:
-            return self._play_raw()
-        rate = float(self.cfg["rate"])
-        tick_ns = int(1e9 / self.cfg["clock_rate"]) if self.cfg["clock_rate"] > 0 else 0
-        t0 = int(self.stamps[0])
-        wall0 = time.monotonic()
-        stamp_of = self._stamp_map(t0, rate)
-        recorded = [stamp_to_ns(m.header.stamp) for m in self.msgs]
-        loop = 0
-        next_log = wall0 + 10.0
-        while True:
-            shift = loop * self.loop_shift_ns
-            last_clock = None
-            for msg, stamp, rec_ns in zip(self.msgs, self.stamps, recorded):
-                bag_ns = int(stamp) + shift
-                # /clock ticks in the gap before this message, on the same wall mapping
-                if tick_ns and self.clock_pub is not None and last_clock is not None:
-                    t = last_clock + tick_ns
-                    while t < bag_ns:
-                        if not self._sleep_until(wall0 + (t - t0) * 1e-9 / rate):
-                            return
-                        self._publish_clock(stamp_of(t))
-                        t += tick_ns
-                if not self._sleep_until(wall0 + (bag_ns - t0) * 1e-9 / rate):
-                    return
-                self._publish_clock(stamp_of(bag_ns))
-                last_clock = bag_ns
-                # publish: the bag time of this frame on the run's clock (its capture, as a live
-                # tracker stamps it); recorded: the bag's header stamp, moved on by the loops
-                msg.header.stamp = stamp_from_ns(stamp_of(bag_ns) if self.cfg["stamps"] == "publish"
-                                                 else rec_ns + shift)
-                self.pub.publish(msg)
-                self.published += 1
-                if time.monotonic() > next_log:
-                    next_log = time.monotonic() + 10.0
-                    self.get_logger().info(f"published {self.published} messages, bag time "
-                                           f"{(bag_ns - t0) * 1e-9:.1f} s")
-            if not self.cfg["loop"]:
-                # let reliable subscribers acknowledge the tail before the publisher goes away
-                self.pub.wait_for_all_acked(Duration(seconds=2.0))
-                self.get_logger().info(f"done: published {self.published} messages")
-                return
-            loop += 1
-            self.get_logger().info(f"loop {loop}: restarting the bag")
+            self._timed_replay(list(zip(self.stamps, self.raw_msgs)), self._publish_raw)
+        else:
+            recorded = [stamp_to_ns(m.header.stamp) for m in self.msgs]
+            self._timed_replay(list(zip(self.stamps, zip(self.msgs, recorded))), self._publish_frame)
 
+    def _publish_frame(self, item, bag_ns: int, shift: int, stamp_of) -> None:
+        """One tracker frame. publish: the bag time of this frame on the run's clock (its capture,
+        as a live tracker stamps it); recorded: the bag's header stamp, moved on by the loops."""
+        msg, rec_ns = item
+        msg.header.stamp = stamp_from_ns(stamp_of(bag_ns) if self.cfg["stamps"] == "publish" else rec_ns + shift)
+        self.pub.publish(msg)
 
-    def _play_raw(self) -> None:
-        """play() for a recording's topics: raw CDR bytes on each topic's publisher, same timing and /clock."""
+    def _publish_raw(self, item, bag_ns: int, shift: int, stamp_of) -> None:
+        """One message of a recording's topics, raw CDR bytes on its topic's publisher."""
+        topic, raw = item
+        if topic in self.header_first and (shift or self.cfg["stamps"] == "publish"):
+            # every header stamp moves with the same map as the bag time, so the recorded
+            # stamps keep their relations (an output still pairs with its tracker frame)
+            raw = with_header_stamp(raw, stamp_of(header_stamp_ns(raw) + shift))
+        self.raw_pubs[topic].publish(raw)
+
+    def _timed_replay(self, items: list, publish) -> None:
+        """Publish each (bag stamp [ns], item) at its bag time / rate with publish(item, bag_ns,
+        shift, stamp_of), /clock ticking in the gaps on the same wall mapping; loops with `loop`."""
         rate = float(self.cfg["rate"])
         tick_ns = int(1e9 / self.cfg["clock_rate"]) if self.cfg["clock_rate"] > 0 else 0
         t0 = int(self.stamps[0])
@@ -350,7 +327,7 @@ class PlayNode(Node):
         while True:
             shift = loop * self.loop_shift_ns
             last_clock = None
-            for (topic, raw), stamp in zip(self.raw_msgs, self.stamps):
+            for stamp, item in items:
                 bag_ns = int(stamp) + shift
                 if tick_ns and self.clock_pub is not None and last_clock is not None:
                     t = last_clock + tick_ns
@@ -361,21 +338,18 @@ class PlayNode(Node):
                         t += tick_ns
                 if not self._sleep_until(wall0 + (bag_ns - t0) * 1e-9 / rate):
                     return
-                if last_clock != bag_ns:
+                if last_clock != bag_ns:  # messages of one bag time share one /clock tick
                     self._publish_clock(stamp_of(bag_ns))
                 last_clock = bag_ns
-                if topic in self.header_first and (shift or self.cfg["stamps"] == "publish"):
-                    # every header stamp moves with the same map as the bag time, so the recorded
-                    # stamps keep their relations (an output still pairs with its tracker frame)
-                    raw = with_header_stamp(raw, stamp_of(header_stamp_ns(raw) + shift))
-                self.raw_pubs[topic].publish(raw)
+                publish(item, bag_ns, shift, stamp_of)
                 self.published += 1
                 if time.monotonic() > next_log:
                     next_log = time.monotonic() + 10.0
                     self.get_logger().info(f"published {self.published} messages, bag time "
                                            f"{(bag_ns - t0) * 1e-9:.1f} s")
             if not self.cfg["loop"]:
-                for pub in self.raw_pubs.values():
+                # let reliable subscribers acknowledge the tail before the publishers go away
+                for pub in self._pubs_by_topic().values():
                     pub.wait_for_all_acked(Duration(seconds=2.0))
                 self.get_logger().info(f"done: published {self.published} messages")
                 return

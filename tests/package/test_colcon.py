@@ -1,6 +1,4 @@
 """The ROS way in: `colcon build` of ros_ws gives install/<pkg>/lib/<pkg>/<node> executables that run."""
-import os
-import shutil
 import subprocess
 import sys
 from pathlib import Path

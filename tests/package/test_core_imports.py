@@ -4,7 +4,6 @@ import pkgutil
 import subprocess
 import sys
 
-import pytest
 
 PACKAGES = ("softhand_sim", "softhand_tracking", "softhand_world")
 # Module names allowed to import rclpy (docs/ARCHITECTURE.md: nodes stay thin, the core never imports rclpy).

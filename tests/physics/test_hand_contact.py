@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from softhand_sim.physics.contact import detection as contact
+from softhand_sim.physics.contact.contact_model import build_contact_model
 from softhand_sim.scenarios.contact import ball_object, ball_under_palm, flexed_targets
 from softhand_sim.physics.model import build_model
 from softhand_sim.physics.rotations import quat_exp, quat_mul, quat_to_matrix
@@ -36,7 +37,7 @@ def test_palm_on_ball_gives_100_contacts(asset):
     ball. (What one detection pass costs is measured by `softhand bench`: collision_ms.)"""
     scene = load_scene()
     model = build_model(asset, HAND_PARAMS, objects=scene.dynamic_objects)
-    cm = contact.build_contact_model(model, scene, asset, points="skin")
+    cm = build_contact_model(model, scene, asset, points="skin")
     system = contact.ContactSystem(cm)
     state = model.initial_state()
     # the hand over the scene's ball on the table, the ball's top 6 mm into the palm

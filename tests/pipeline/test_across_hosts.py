@@ -23,7 +23,6 @@ must count none but the control packets this test sends itself.
 from __future__ import annotations
 
 import json
-import math
 import socket
 import subprocess
 import sys

@@ -12,7 +12,7 @@ from geometry_msgs.msg import PoseArray
 from tests.support.rosproc import RosGraph
 from softhand_sim.ros import msgs as rm
 from softhand_sim.paths import bags_dir
-from softhand_sim.ros.common import status_node
+from softhand_sim.ros.msgs import status_node
 from softhand_sim.scene import load_scene
 
 # Timing over real DDS between processes on a shared 2-core machine: one retry absorbs a stall.

@@ -69,7 +69,7 @@ def test_parameter_services_of_a_running_node(ros_env, node_name, script, live_k
     reason and leave the value as it was; a live key takes effect (get_parameters reads it back)."""
     from rcl_interfaces.srv import DescribeParameters, GetParameters, SetParameters
 
-    from tests.support.rosproc import VENV_BIN, RosGraph
+    from tests.support.rosproc import RosGraph
 
     def call(g, client, request, proc):
         future = client.call_async(request)

@@ -15,7 +15,7 @@ from tests.support.rosproc import RosGraph
 from softhand_sim.ros import msgs as rm
 from softhand_sim.params import load_params
 from softhand_sim.runtime import GUARD_CAP_RESIDUAL_FACTOR, GUARD_MAX_KINETIC_ENERGY, SimRuntime
-from softhand_sim.ros.common import status_node
+from softhand_sim.ros.msgs import status_node
 
 DT = 1.0 / 60.0
 # One Jacobi-preconditioned CG iteration cannot reach 1e-10 on a step whose targets moved: the

@@ -134,7 +134,7 @@ def test_rate_parameter_and_sqlite_bag_via_ros_args(ros_env, tmp_path):
 
 def test_loop_keeps_time_moving_and_stops_on_sigint(ros_env, tmp_path):
     """--loop repeats the bag with stamps and /clock shifted forward; SIGINT ends it with exit code 0."""
-    stamps = tracker_bag(tmp_path / "bag", [0.01] * 9)  # 10 messages, 0.09 s
+    tracker_bag(tmp_path / "bag", [0.01] * 9)  # 10 messages, 0.09 s
     with RosGraph(ros_env) as g:
         joints = g.listen(TOPIC, PoseArray)
         proc = g.start(["softhand-play", str(tmp_path / "bag"), "--loop", "--wait-subscribers", "1"])
@@ -148,7 +148,7 @@ def test_loop_keeps_time_moving_and_stops_on_sigint(ros_env, tmp_path):
 
 def test_start_skips_the_beginning(ros_env, tmp_path):
     """--start S drops the messages of the first S seconds."""
-    stamps = tracker_bag(tmp_path / "bag", [0.01] * 29)
+    tracker_bag(tmp_path / "bag", [0.01] * 29)
     with RosGraph(ros_env) as g:
         joints = g.listen(TOPIC, PoseArray)
         proc = g.start(["softhand-play", str(tmp_path / "bag"), "--start", "0.2", "--wait-subscribers", "1"])

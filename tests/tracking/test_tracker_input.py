@@ -17,7 +17,7 @@ from tests.support.rosproc import RosGraph
 from softhand_sim.ros import msgs as rm
 from softhand_tracking.adapter import _SEG_DIST, _SEG_PROX
 from softhand_sim.scenarios.tracker_bags import sample
-from softhand_sim.ros.common import status_node
+from softhand_sim.ros.msgs import status_node
 
 PACED_HZ = 100.0   # categorized bad frames, paced (valid and bad alternate)
 # The subscription is best effort (sensor QoS, depth 5): on a loaded 2-core machine a node stalled

@@ -12,8 +12,7 @@ from geometry_msgs.msg import PoseArray
 from tests.support.rosproc import RosGraph
 from softhand_sim.ros.msgs import diagnostic_values, pose_array_to_numpy, stamp_to_seconds
 from softhand_tracking.adapter import TrackerAdapter
-from softhand_sim.scenarios.tracker_bags import FAST_GAP
-from softhand_sim.ros.common import status_node
+from softhand_sim.ros.msgs import status_node
 
 # Timing over real DDS between processes on a shared 2-core machine: one retry absorbs a stall.
 pytestmark = [pytest.mark.ros, pytest.mark.slow, pytest.mark.flaky(reruns=1, reruns_delay=2)]

@@ -79,19 +79,34 @@ class ProcessSet:
         return self.procs[name][0].poll() is None
 
     def stop(self, name, grace=10.0):
-        proc, log = self.procs[name]
+        self.interrupt(name)
+        return self.reap(name, grace)
+
+    def interrupt(self, name):
+        proc = self.procs[name][0]
         if proc.poll() is None:
             proc.send_signal(signal.SIGINT)
-            try:
-                proc.wait(grace)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait()
+
+    def reap(self, name, grace=10.0):
+        """Wait for an interrupted process (SIGKILL after `grace` s); its exit code."""
+        proc, log = self.procs[name]
+        try:
+            proc.wait(grace)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
         log.close()
         return proc.returncode
 
-    def stop_all(self):
-        return {name: self.stop(name) for name in reversed(list(self.procs))}
+    def stop_all(self, first=("play", "record")):
+        """Stop `first` one by one (the recorder ends before the nodes it records), then every
+        other process at once: each takes about a second to shut rclpy down."""
+        codes = {name: self.stop(name) for name in first if name in self.procs}
+        rest = [name for name in reversed(list(self.procs)) if name not in codes]
+        for name in rest:
+            self.interrupt(name)
+        codes.update({name: self.reap(name) for name in rest})
+        return codes
 
     def tail(self, name, lines=15):
         path = self.log_dir / f"{name}.log"

@@ -15,8 +15,11 @@ Measured, not reported by the nodes alone:
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections import defaultdict
+from itertools import chain
+from operator import attrgetter
 from pathlib import Path
 
 import numpy as np
@@ -31,6 +34,14 @@ def _reader(bag_dir):
     return Reader(Path(bag_dir)), get_typestore(Stores.ROS2_JAZZY)
 
 
+def _float_fields(obj):
+    """The field names of a message whose fields are all floats (Point, Quaternion, ColorRGBA...), else None."""
+    if not dataclasses.is_dataclass(obj):
+        return None
+    names = tuple(f.name for f in dataclasses.fields(obj) if not f.name.startswith("__"))  # not __msgtype__
+    return names if names and all(isinstance(getattr(obj, f), float) for f in names) else None
+
+
 def _finite(msg, depth=0):
     """True if every float in the message (recursively, arrays included) is finite."""
     if depth > 8:
@@ -40,6 +51,12 @@ def _finite(msg, depth=0):
     if isinstance(msg, np.ndarray):
         return msg.dtype.kind != "f" or bool(np.all(np.isfinite(msg)))
     if isinstance(msg, (list, tuple)):
+        names = _float_fields(msg[0]) if msg else None
+        if names and all(type(m) is type(msg[0]) for m in msg):
+            # a marker's points: one array instead of a call per float (the skin marker has 70k)
+            values = np.fromiter(chain.from_iterable(map(attrgetter(*names), msg)) if len(names) > 1
+                                 else map(attrgetter(names[0]), msg), dtype=np.float64)
+            return bool(np.all(np.isfinite(values)))
         return all(_finite(m, depth + 1) for m in msg)
     if hasattr(msg, "__dataclass_fields__"):
         return all(_finite(getattr(msg, f), depth + 1) for f in msg.__dataclass_fields__)

@@ -23,7 +23,7 @@ import numpy as np
 from itertools import permutations
 
 from softhand_sim.handmodel.skeleton import FINGER_BONES, bone_chain_points
-from softhand_sim.handmodel.tets import dihedral_angles, tet_volumes
+from softhand_sim.handmodel.tets import tet_volumes
 
 FINGER_ORDER = ("little", "ring", "middle", "index")  # finger f owns palm node columns 2f, 2f+1
 PALM_ROWS = 6  # NI: cells along the palm from the wrist to the knuckle row

@@ -19,7 +19,7 @@ bags respect (within the hand model's joint limits).
 from __future__ import annotations
 
 import functools
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 

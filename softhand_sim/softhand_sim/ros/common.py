@@ -17,7 +17,7 @@ import signal
 import sys
 import time
 from collections import deque
-from typing import Callable, Mapping, Optional
+from typing import Callable, Mapping, NoReturn, Optional
 
 import numpy as np
 import rclpy
@@ -30,8 +30,7 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from rclpy.utilities import remove_ros_args
 
 from softhand_sim.params import ParamError
-from softhand_sim.ros.msgs import (DIAGNOSTIC_TASKS, diagnostic_array, diagnostic_name,  # noqa: F401
-                                  diagnostic_status, status_node)
+from softhand_sim.ros.msgs import diagnostic_array, diagnostic_name, diagnostic_status
 
 # ------------------------------------------------------------------------------------------- QoS
 
@@ -311,7 +310,7 @@ class NodeExit(Exception):
         self.code = int(code)
 
 
-def fail(message: str, code: int = 1) -> "NoReturn":  # noqa: F821
+def fail(message: str, code: int = 1) -> NoReturn:
     """Print `message` on stderr (no traceback) and exit with `code`."""
     print(f"error: {message}", file=sys.stderr, flush=True)
     raise SystemExit(code)

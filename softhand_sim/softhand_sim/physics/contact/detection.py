@@ -38,8 +38,7 @@ from numba import njit
 from softhand_sim.physics.contact import sdf
 from softhand_sim.physics.energies import contact as contact_energy
 from softhand_sim.physics.rotations import quat_to_matrix
-from softhand_sim.physics.contact.contact_model import (KIND_GRID, KIND_HALFSPACE, ContactModel,  # noqa: F401  (re-exported)
-                            build_contact_model, skin_points, tet_boundary_triangles, vertex_areas)
+from softhand_sim.physics.contact.contact_model import KIND_GRID, KIND_HALFSPACE, ContactModel, build_contact_model
 
 STICK, SLIP, SLIDING = 0, 1, 2  # SLIDING: slipping and moving away from the anchor
 _CONE_SLACK = 1e-9  # relative slack when clamping onto the friction cone

@@ -53,6 +53,7 @@ from numba import njit
 from softhand_sim.physics.contact import sdf
 from softhand_sim.physics.contact.contact_model import vertex_areas
 from softhand_sim.physics.contact.sdf_mesh import mesh_signed_distance_grid
+from softhand_sim.physics.embedded import embedded_positions
 from softhand_sim.physics.energies import self_contact as energy
 from softhand_sim.physics.rotations import quat_to_matrix
 
@@ -269,6 +270,24 @@ def _anchor_from_local(a_local, n_local, s, seg_rest_R, seg_rest_o, point_rest, 
 
 
 @njit(cache=True)
+def _store(c, p, seg, vb, o_rest, n_rest, o, n, slip, point_tet, point_bary, point_area,
+           c_point, c_seg, c_vb, c_orest, c_nrest, c_ptet, c_pbary, c_atet, c_abary, c_offset,
+           c_normal, c_area, c_slip):
+    """Row c of the new contact list: point p against segment seg, anchored at skin vertex vb."""
+    c_point[c], c_seg[c], c_vb[c] = p, seg, vb
+    c_orest[c] = o_rest
+    c_nrest[c] = n_rest
+    c_ptet[c] = point_tet[p]
+    c_pbary[c] = point_bary[p]
+    c_atet[c] = point_tet[vb]
+    c_abary[c] = point_bary[vb]
+    c_offset[c] = o
+    c_normal[c] = n
+    c_area[c] = point_area[p]
+    c_slip[c] = slip
+
+
+@njit(cache=True)
 def collide_kernel(node_x, body_x, body_q, body_com_local, v, tets, tet_q,
                    point_tet, point_bary, point_rest, point_area, point_segment, point_exclude,
                    seg_points, seg_start, seg_body, seg_rest_R, seg_rest_o, seg_lo, seg_hi,
@@ -279,15 +298,8 @@ def collide_kernel(node_x, body_x, body_q, body_com_local, v, tets, tet_q,
                    c_ptet, c_pbary, c_atet, c_abary, c_offset, c_normal, c_area, c_slip):
     """One detection pass from the previous list (prev_*) into the new one (c_*); returns
     (count, dropped, candidates tested)."""
-    P = point_tet.shape[0]
     S = seg_body.shape[0]
-    for p in range(P):
-        t = point_tet[p]
-        for i in range(3):
-            acc = 0.0
-            for a in range(4):
-                acc += point_bary[p, a] * node_x[tets[t, a], i]
-            xp[p, i] = acc
+    embedded_positions(node_x, tets, point_tet, point_bary, xp)
     R = np.empty((S, 3, 3))
     org = np.empty((S, 3))
     cw = np.empty((S, 3))
@@ -374,19 +386,10 @@ def collide_kernel(node_x, body_x, body_q, body_com_local, v, tets, tet_q,
                 rel -= vr * D[i]
             if rel > 0.0:
                 slip = SLIDING
-        c = count
+        _store(count, p, s, vb, o_rest, n_rest, o, n, slip, point_tet, point_bary, point_area,
+               c_point, c_seg, c_vb, c_orest, c_nrest, c_ptet, c_pbary, c_atet, c_abary, c_offset,
+               c_normal, c_area, c_slip)
         count += 1
-        c_point[c], c_seg[c], c_vb[c] = p, s, vb
-        c_orest[c] = o_rest
-        c_nrest[c] = n_rest
-        c_ptet[c] = point_tet[p]
-        c_pbary[c] = point_bary[p]
-        c_atet[c] = point_tet[vb]
-        c_abary[c] = point_bary[vb]
-        c_offset[c] = o
-        c_normal[c] = n
-        c_area[c] = point_area[p]
-        c_slip[c] = slip
     # ---- new contacts: broad phase on segment spheres, narrow phase on the fields
     for s in range(S):
         for u in range(s + 1, S):
@@ -439,19 +442,10 @@ def collide_kernel(node_x, body_x, body_q, body_com_local, v, tets, tet_q,
                     for i in range(3):
                         o_rest[i] = Rt[0, i] * o[0] + Rt[1, i] * o[1] + Rt[2, i] * o[2]
                     active[p, B] = 1
-                    c = count
+                    _store(count, p, B, vb, o_rest, n_rest, o, n, STICK, point_tet, point_bary, point_area,
+                           c_point, c_seg, c_vb, c_orest, c_nrest, c_ptet, c_pbary, c_atet, c_abary,
+                           c_offset, c_normal, c_area, c_slip)
                     count += 1
-                    c_point[c], c_seg[c], c_vb[c] = p, B, vb
-                    c_orest[c] = o_rest
-                    c_nrest[c] = n_rest
-                    c_ptet[c] = point_tet[p]
-                    c_pbary[c] = point_bary[p]
-                    c_atet[c] = point_tet[vb]
-                    c_abary[c] = point_bary[vb]
-                    c_offset[c] = o
-                    c_normal[c] = n
-                    c_area[c] = point_area[p]
-                    c_slip[c] = STICK
     return count, dropped, tested
 
 

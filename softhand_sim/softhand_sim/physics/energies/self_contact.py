@@ -33,6 +33,8 @@ Arrays of the active list (first `count` rows):
 import numpy as np
 from numba import njit
 
+from softhand_sim.physics.embedded import embedded_point
+
 
 @njit(cache=True)
 def _frame(c, x, tets, p_tet, p_bary, a_tet, a_bary, offset):
@@ -149,11 +151,7 @@ def contact_forces(x, tets, count, p_tet, p_bary, a_tet, a_bary, offset, normal,
         n = normal[c]
         w = area[c]
         dn = n[0] * D[0] + n[1] * D[1] + n[2] * D[2]
-        tp = p_tet[c]
+        embedded_point(x, tets, p_tet[c], p_bary[c], out_point[c])
         for i in range(3):
-            acc = 0.0
-            for a in range(4):
-                acc += p_bary[c, a] * x[tets[tp, a], i]
-            out_point[c, i] = acc
             out_force_n[c, i] = w * kn * dn * n[i]
             out_force_f[c, i] = w * kf * (D[i] - dn * n[i])
