@@ -84,6 +84,7 @@ def test_summary_says_when_sizing_failed_and_when_nothing_was_reported(tmp_path)
     s = summarize_run(tmp_path / "failed")
     assert s["hand_measures"]["hand_measures_source"] == "default"
     assert s["hand_measures"]["hand_size_frames"] == 3
+    assert s["hand_measures"]["palm_length_mm"] == 90.0 and isinstance(s["hand_measures"]["palm_length_mm"], float)
     assert "(sizing: state failed, frames 3, error too few valid frames)" in hand_measures_line(s["hand_measures"])
     write_bag(tmp_path / "none", [_diagnostics_record(T0_NS, [_sim_status({}, node="tracking_node")])])
     none = summarize_run(tmp_path / "none")

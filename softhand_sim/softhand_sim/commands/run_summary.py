@@ -98,7 +98,8 @@ def hand_measures_values(values: dict) -> dict:
     out = {}
     for key, value in values.items():
         if key.startswith(HAND_KEY_PREFIXES):
-            out[key] = _number(value)
+            number = _number(value)  # sizes stay floats in summary.json ('190' is how 190.0 is sent)
+            out[key] = float(number) if key.endswith(("_mm", "_s")) and isinstance(number, int) else number
     return out
 
 
