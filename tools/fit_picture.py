@@ -5,12 +5,16 @@ from one fixed camera, with the tracked joints drawn on both and the fingertip e
 
     python tools/fit_picture.py [OUT.png]      # default docs/img/fit_side_by_side.png
 
+Prints one JSON line of figures per hand (hand length, the pictured state and tracked frame,
+fingertip error there and over the run).
+
 The fitted hand has the measures `softhand calibrate BAG` writes (fit on the bag's first second),
 or those of a measures file (--measures). Fingertip error: the distance between the simulated and
 the tracked fingertips [mm], the mean of the five at the pictured moment, and the median over
 every simulated state of the run (softhand_sim.handmodel.fidelity, so the pipeline's lag counts).
 """
 import argparse
+import json
 import sys
 
 import numpy as np
@@ -94,7 +98,7 @@ def main(argv=None):
                   legend=(f"tracked joints ({args.bag}, frame at t = {figures[0]['tracked_t_s']:.2f} s)",
                           "simulated fingertips"))
     for f in figures:
-        print(f)
+        print(json.dumps(f))
     print(f"wrote {args.out}")
     return 0
 
