@@ -53,7 +53,8 @@ def simulate(bag, measures, t_picture, until):
 
 
 def fingertip_error_mm(bones, bone_length, joints):
-    """Mean distance [mm] of the simulated fingertips (bone poses (16, 7)) to the tracked ones (26, 3+)."""
+    """(mean distance [mm] of the simulated fingertips to the tracked ones, the simulated fingertips
+    (5, 3) [m]) for one state's bone poses (16, 7) and one tracked frame's joints (26, 3+)."""
     tips = simulated_points(np.asarray(bones, dtype=np.float64), np.asarray(bone_length, dtype=np.float64))[2]
     return float(np.mean(np.linalg.norm(tips - np.asarray(joints)[TIPS, :3], axis=1)) * 1e3), tips
 
