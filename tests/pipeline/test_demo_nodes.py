@@ -159,11 +159,15 @@ def check_press(bag_dir):
 
 
 def test_demo_command_end_to_end(grasp_short_run):
-    """`softhand demo` on the short bag writes the bag, summary.json and the preview pictures."""
+    """`softhand demo` on the short bag writes the bag, summary.json and the preview pictures; the
+    summary names the hand simulated (the default 19 cm hand, from sim_node's /diagnostics)."""
     out, summary, stdout = grasp_short_run
     assert (out / "bag" / "metadata.yaml").is_file()
     assert (out / "preview.png").stat().st_size > 10_000 and (out / "preview.gif").is_file()
     assert "sim step" in stdout and "latency" in stdout and "tracker frames" in stdout
+    hand = summary["hand_measures"]
+    assert hand["hand_measures_source"] == "default" and hand["hand_length_mm"] == 190.0, hand
+    assert "hand measures: default, hand length 190.0 mm" in stdout
     check_nothing_lost(summary)
     assert all(code == 0 for code in summary["exit_codes"].values()), summary["exit_codes"]
     assert summary["bag_mb"] < 100

@@ -15,3 +15,77 @@ def test_latency_leaves_out_frames_before_the_first_bones():
     assert len(latency) == np.sum((tracker >= 1.0) & (tracker < bones[-1]))
     assert latency.min() > 0.0 and latency.max() <= 1e3 / 60.0 + 1e-9
     assert frame_latency_ms([], bones)[0].size == 0
+
+
+# ------------------------------------------------------------------ the hand measures in use
+
+T0_NS = 1_800_000_000 * 10**9
+DIAGNOSTICS = "diagnostic_msgs/msg/DiagnosticArray"
+
+
+def _diagnostics_record(t_ns, statuses):
+    """A /diagnostics record of rclpy statuses (as the nodes build them: softhand_sim.ros.msgs)."""
+    from softhand_sim.ros.bagio import TYPESTORE, serialize
+
+    T = TYPESTORE.types
+    header = T["std_msgs/msg/Header"](stamp=T["builtin_interfaces/msg/Time"](sec=t_ns // 10**9, nanosec=t_ns % 10**9),
+                                      frame_id="world")
+    status = [T["diagnostic_msgs/msg/DiagnosticStatus"](
+        level=int.from_bytes(s.level, "little"), name=s.name, message=s.message, hardware_id=s.hardware_id,
+        values=[T["diagnostic_msgs/msg/KeyValue"](key=kv.key, value=kv.value) for kv in s.values]) for s in statuses]
+    return "/diagnostics", DIAGNOSTICS, t_ns, serialize(T[DIAGNOSTICS](header=header, status=status), DIAGNOSTICS)
+
+
+def _sim_status(values, node="sim_node"):
+    from softhand_sim.ros.msgs import diagnostic_name, diagnostic_status
+
+    return diagnostic_status(diagnostic_name(node), {"step_ms_p50": 3.0, "step_ms_p99": 5.0, **values},
+                             hardware_id="softhand@test")
+
+
+def test_summary_reports_the_last_hand_measures_of_sim_node(tmp_path):
+    """An auto-sized run: sim_node first reports the default hand while the sizer collects frames,
+    then the fitted hand (source auto, the sizer's keys gone). The summary holds the fitted hand's
+    keys exactly, not the earlier ones, and not another node's status that uses the same keys."""
+    from softhand_sim.commands.run_summary import hand_measures_line, summarize_run
+    from softhand_sim.handmodel.measures import HandMeasures, scale_measures
+    from softhand_sim.hand_sizer import measures_diagnostics
+    from softhand_sim.ros.bagio import write_bag
+
+    fitted = scale_measures(HandMeasures(), 1.12)
+    collecting = {**measures_diagnostics(HandMeasures(), "default"), "hand_measures_source": "auto",
+                  "hand_size_state": "collecting", "hand_size_frames": 40}
+    decoy = measures_diagnostics(scale_measures(HandMeasures(), 0.8), "file")
+    write_bag(tmp_path / "rec", [
+        _diagnostics_record(T0_NS, [_sim_status(collecting)]),
+        _diagnostics_record(T0_NS + 10**9, [_sim_status(measures_diagnostics(fitted, "auto"))]),
+        _diagnostics_record(T0_NS + 2 * 10**9, [_sim_status(decoy, node="world_node")]),
+    ])
+    s = summarize_run(tmp_path / "rec")
+    expected = measures_diagnostics(fitted, "auto")
+    assert s["hand_measures"] == expected
+    assert expected["hand_length_mm"] > measures_diagnostics(HandMeasures(), "default")["hand_length_mm"] + 10
+    line = hand_measures_line(s["hand_measures"])
+    assert line.startswith("  hand measures: auto,") and f"hand length {expected['hand_length_mm']:.1f} mm" in line
+    assert "sizing" not in line
+
+
+def test_summary_says_when_sizing_failed_and_when_nothing_was_reported(tmp_path):
+    """A failed auto fit keeps the default hand: the summary names the default source, the state
+    and the error; a recording without sim_node's status has no hand measures."""
+    from softhand_sim.commands.run_summary import hand_measures_line, summarize_run
+    from softhand_sim.handmodel.measures import HandMeasures
+    from softhand_sim.hand_sizer import measures_diagnostics
+    from softhand_sim.ros.bagio import write_bag
+
+    failed = {**measures_diagnostics(HandMeasures(), "default"), "hand_size_state": "failed",
+              "hand_size_frames": 3, "hand_size_error": "too few valid frames"}
+    write_bag(tmp_path / "failed", [_diagnostics_record(T0_NS, [_sim_status(failed)])])
+    s = summarize_run(tmp_path / "failed")
+    assert s["hand_measures"]["hand_measures_source"] == "default"
+    assert s["hand_measures"]["hand_size_frames"] == 3
+    assert s["hand_measures"]["palm_length_mm"] == 90.0 and isinstance(s["hand_measures"]["palm_length_mm"], float)
+    assert "(sizing: state failed, frames 3, error too few valid frames)" in hand_measures_line(s["hand_measures"])
+    write_bag(tmp_path / "none", [_diagnostics_record(T0_NS, [_sim_status({}, node="tracking_node")])])
+    none = summarize_run(tmp_path / "none")
+    assert none["hand_measures"] == {} and "not reported" in hand_measures_line(none["hand_measures"])

@@ -4,7 +4,7 @@ Starts world_node, sim_node, tracking_node and record_node as separate processes
 discovery, a ROS domain of their own), waits until they are up, plays the bag with play_node, stops
 everything when the bag ends, then writes runs/<stamp>/:
     bag/            the recording (rosbag2, mcap storage)
-    summary.json    rates per node, sim step p50/p99, latency, contacts, ball lift
+    summary.json    rates per node, sim step p50/p99, latency, contacts, ball lift, hand measures in use
     preview.png     key frames drawn from the recording (CPU renderer), preview.gif
     logs/           each node's output
 """
@@ -168,6 +168,8 @@ def run_demo(bag, out_dir, rate=1.0, params_file=None, preview=True, startup_tim
 
 
 def format_summary(s, out_dir):
+    from softhand_sim.commands.run_summary import hand_measures_line
+
     r = s.get("rates_hz", {})
     lines = [
         f"run {out_dir}",
@@ -177,6 +179,7 @@ def format_summary(s, out_dir):
         f"p99 {s.get('latency_ms_p99', float('nan')):.1f} ms (first /hand/bones "
         f"{s.get('startup_s', float('nan')):.2f} s after the first tracker frame)",
         "  tracker frames: " + ", ".join(f"{k} {v}" for k, v in s.get("tracker_frames", {}).items()),
+        hand_measures_line(s.get("hand_measures", {})),
         f"  max active contacts: {s.get('max_contacts', 0)}",
         f"  ball: lifted {100 * s.get('ball_lift_m', 0.0):.1f} cm (lifted >= 8 cm: {s.get('ball_lifted', False)})",
         f"  recording: {s.get('bag_messages', 0)} messages, {s.get('bag_mb', 0.0):.1f} MB, all values finite: "

@@ -11,6 +11,8 @@ Measured, not reported by the nodes alone:
 - tracker frames: in the input bag, published (play_node's log), recorded, and received / accepted /
   rejected by tracking_node (its last /diagnostics): nothing may be lost on replay (issue #17);
 - max active contacts from /hand/contacts; ball lift from the engine side /world/object_states;
+- the hand measures in use (source default | file | auto, hand and palm sizes [mm], the sizing state
+  while `hand_measures: auto` fits) from sim_node's last /diagnostics status that names them;
 - finiteness of every numeric field of every recorded message.
 """
 from __future__ import annotations
@@ -101,6 +103,45 @@ def _published_frames(play_log):
     return int(found[-1]) if found else None
 
 
+HAND_KEY_PREFIXES = ("hand_", "palm_")  # sim_node's measures keys (hand_sizer.measures_diagnostics, HandSizer)
+
+
+def hand_measures_values(values: dict) -> dict:
+    """The hand measures keys of one sim_node status (key -> value string), numbers parsed: e.g.
+    {'hand_measures_source': 'auto', 'hand_length_mm': 181.2, 'palm_length_mm': 99.0, ...};
+    empty if the status does not name its measures."""
+    if "hand_measures_source" not in values:
+        return {}
+    out = {}
+    for key, value in values.items():
+        if key.startswith(HAND_KEY_PREFIXES):
+            number = _number(value)  # sizes stay floats in summary.json ('190' is how 190.0 is sent)
+            out[key] = float(number) if key.endswith(("_mm", "_s")) and isinstance(number, int) else number
+    return out
+
+
+def _number(text: str):
+    """int or float of a /diagnostics value string if it is one, else the string."""
+    for kind in (int, float):
+        try:
+            return kind(text)
+        except ValueError:
+            pass
+    return text
+
+
+def hand_measures_line(h: dict) -> str:
+    """The printed summary's line of summarize_run()['hand_measures']: which hand was simulated."""
+    if not h:
+        return "  hand measures: not reported by sim_node"
+    sizes = ", ".join(f"{k.removesuffix('_mm').replace('_', ' ')} {v:.1f} mm" for k, v in h.items()
+                      if k.endswith("_mm") and isinstance(v, (int, float)))
+    line = f"  hand measures: {h.get('hand_measures_source', '?')}" + (f", {sizes}" if sizes else "")
+    extra = [f"{k[10:-2]} {v} s" if k.endswith("_s") else f"{k[10:]} {v}"  # k[10:]: after 'hand_size_'
+             for k, v in h.items() if k.startswith("hand_size_")]
+    return line + (f" (sizing: {', '.join(extra)})" if extra else "")
+
+
 def summarize_run(bag_dir, bag_name="", exit_codes=None, input_bag=None, play_log=None):
     from softhand_sim.ros.msgs import status_node  # ROS message packages only when reading a run
 
@@ -114,6 +155,7 @@ def summarize_run(bag_dir, bag_name="", exit_codes=None, input_bag=None, play_lo
     tracker_t, bones_t = [], []
     step_p50, step_p99 = [], []
     tracking_counts = {}
+    hand_measures = {}
     max_contacts = 0
     ball_z = []
     all_finite = True
@@ -150,6 +192,8 @@ def summarize_run(bag_dir, bag_name="", exit_codes=None, input_bag=None, play_lo
                                 tracking_counts[key.removeprefix("frames_")] = int(float(values[key]))
                     if status_node(status.name) == "sim_node":
                         values = {kv.key: kv.value for kv in status.values}
+                        # the last status wins whole: the sizer's keys leave it once the fitted hand runs
+                        hand_measures = hand_measures_values(values) or hand_measures
                         try:
                             p50, p99 = float(values["step_ms_p50"]), float(values["step_ms_p99"])
                         except (KeyError, ValueError):
@@ -180,6 +224,7 @@ def summarize_run(bag_dir, bag_name="", exit_codes=None, input_bag=None, play_lo
         "latency_ms_p50": float(np.percentile(latency, 50)) if len(latency) else float("nan"),
         "latency_ms_p99": float(np.percentile(latency, 99)) if len(latency) else float("nan"),
         "startup_s": startup_s,
+        "hand_measures": hand_measures,
         "max_contacts": max_contacts,
         "ball_lift_m": float(max(ball_z) - ball_z[0]) if ball_z else 0.0,
         "ball_lifted": bool(ball_z and max(ball_z) - ball_z[0] >= 0.08),

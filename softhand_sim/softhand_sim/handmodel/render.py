@@ -4,7 +4,8 @@ Orthographic projection, painter's algorithm (triangles sorted back to front) an
 shading with a head light plus a key light; no OpenGL needed, a 24k-triangle skin draws in about
 a second. `draw_scene` is the general entry point (a posed skin plus spheres, boxes, cylinders,
 capsules), `render_hand_png` draws an asset from the dorsal and palmar sides, `render_frames`
-draws a sequence of posed skins side by side (a preview strip).
+draws a sequence of posed skins side by side (a preview strip), `render_panels` draws posed skins
+side by side from one fixed camera with tracked joints (`draw_joints`) over them.
 """
 import matplotlib
 
@@ -14,11 +15,26 @@ import numpy as np  # noqa: E402
 import trimesh  # noqa: E402
 from matplotlib.collections import PolyCollection  # noqa: E402
 
+from softhand_sim.handmodel.skeleton_names import JOINT_INDEX  # noqa: E402
 from softhand_sim.physics.rotations import quat_to_matrix  # noqa: E402
 
 SKIN_RGB = (0.93, 0.74, 0.62)
 OBJECT_RGB = (0.45, 0.62, 0.85)
 TET_RGB = (0.55, 0.75, 0.55)
+JOINT_RGB = (0.05, 0.25, 0.75)
+MARK_RGB = (0.85, 0.1, 0.1)
+
+
+def _chain(*names):
+    return tuple((JOINT_INDEX[a], JOINT_INDEX[b]) for a, b in zip(names, names[1:]))
+
+
+# The lines between the 26 tracked (OpenXR) joints that draw a hand skeleton: each digit from the
+# wrist through its joints to the tip, and the knuckle row.
+TRACKED_HAND_LINES = _chain("WRIST", "THUMB_METACARPAL", "THUMB_PROXIMAL", "THUMB_DISTAL", "THUMB_TIP") + tuple(
+    seg for f in ("INDEX", "MIDDLE", "RING", "LITTLE")
+    for seg in _chain("WRIST", f"{f}_METACARPAL", f"{f}_PROXIMAL", f"{f}_INTERMEDIATE", f"{f}_DISTAL", f"{f}_TIP")
+) + _chain("INDEX_PROXIMAL", "MIDDLE_PROXIMAL", "RING_PROXIMAL", "LITTLE_PROXIMAL")
 
 # View rotations: rows are the screen right, screen up and toward-viewer axes in world coords.
 VIEWS = {
@@ -199,3 +215,47 @@ def render_hand_png(asset, path, views=("dorsal", "palmar"), show_tets=False, sh
     fig.savefig(path)
     plt.close(fig)
     return path
+
+
+def draw_joints(ax, points, view, lines=(), rgb=JOINT_RGB, size=14.0, marker="o", zorder=3):
+    """Points (n, 3) [m] (e.g. tracked joints) as markers, and lines (pairs of point indices),
+    projected like draw_scene's `view` and drawn over everything (joints inside the skin show)."""
+    cam = np.asarray(points, dtype=np.float64).reshape(-1, 3) @ view_matrix(view)[:2].T
+    for a, b in lines:
+        ax.plot(cam[[a, b], 0], cam[[a, b], 1], color=rgb, linewidth=1.0, alpha=0.8, zorder=zorder)
+    ax.scatter(cam[:, 0], cam[:, 1], s=size, color=rgb, marker=marker, zorder=zorder + 1, linewidths=1.2)
+    return ax
+
+
+def render_panels(panels, path, view="dorsal", panel_px=(420, 400), dpi=100, margin=0.01, legend=None):
+    """Write a PNG of posed skins side by side, all seen from one fixed camera (`view`, one frame
+    that shows every panel's skin and points, so sizes compare across panels).
+
+    panels: dicts with skin_vertices (V, 3) [m], skin_triangles (T, 3), title, and optionally joints
+    (n, 3+) [m] (positions first) drawn as dots with TRACKED_HAND_LINES when n == 26, and marks (m, 3) drawn as crosses.
+    legend: labels (joints, marks) of a figure legend. Returns the camera frame ((x0, x1), (y0, y1)).
+    """
+    everything = [p["skin_vertices"] for p in panels] + [p[k] for p in panels for k in ("joints", "marks") if k in p]
+    limits = view_limits(np.concatenate([np.asarray(a, dtype=np.float64)[..., :3].reshape(-1, 3) for a in everything]),
+                         view, margin)
+    fig, axes = plt.subplots(1, len(panels), figsize=(panel_px[0] * len(panels) / dpi, panel_px[1] / dpi), dpi=dpi,
+                             squeeze=False)
+    for ax, p in zip(axes[0], panels):
+        draw_scene(ax, p["skin_vertices"], p["skin_triangles"], (), view, limits=limits)
+        if "joints" in p:
+            joints = np.asarray(p["joints"], dtype=np.float64)[:, :3]
+            draw_joints(ax, joints, view, TRACKED_HAND_LINES if len(joints) == len(JOINT_INDEX) else ())
+        if "marks" in p:
+            draw_joints(ax, np.asarray(p["marks"], dtype=np.float64)[:, :3], view, rgb=MARK_RGB, size=30.0,
+                        marker="x", zorder=5)
+        ax.set_title(p.get("title", ""), fontsize=9)
+    if legend:
+        from matplotlib.lines import Line2D
+
+        handles = [Line2D([], [], color=JOINT_RGB, marker="o", linewidth=1.0, label=legend[0]),
+                   Line2D([], [], color=MARK_RGB, marker="x", linestyle="none", label=legend[1])][:len(legend)]
+        fig.legend(handles=handles, loc="lower center", ncol=len(handles), fontsize=8, frameon=False)
+    fig.tight_layout(rect=(0, 0.05 if legend else 0, 1, 0.98))
+    fig.savefig(path)
+    plt.close(fig)
+    return limits
