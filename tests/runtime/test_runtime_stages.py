@@ -52,3 +52,18 @@ def test_runtime_stages_account_for_the_step(params):
     assert covered >= MIN_COVERED
     for name in ("targets", "guard", "skin", "output"):  # the runtime's own stages run every step
         assert np.all(stages[:, STAGES.index(name)] > 0.0), name
+
+
+def test_p50_p99_is_step_stats_percentile():
+    """sim_node's one-sort p50/p99 of the stage windows equals StepStats.percentile (numpy's linear
+    rule) on windows of 1, 2, 7 and a full 1000 of 1500 values; NaN while empty."""
+    from softhand_sim.sim_node import p50_p99  # imports rclpy's Node class; no rclpy.init
+    from softhand_sim.timing import StepStats
+
+    rng = np.random.default_rng(3)
+    assert all(np.isnan(p50_p99(StepStats(window=10))))
+    for window, n in ((1, 1), (2, 2), (10, 7), (1000, 1500)):
+        stats = StepStats(window=window)
+        for v in rng.exponential(2.0, n):
+            stats.add(v)
+        assert p50_p99(stats) == pytest.approx((stats.percentile(50), stats.percentile(99)), rel=1e-12, abs=1e-15)
