@@ -18,10 +18,11 @@ one-hand caller sees exactly the one-hand runtime.
 Timeline of a step at time t: bone targets = the latest intermediate bones (held between
 updates, Sect. 3.6); object targets = the engine copies extrapolated to t + dt (the end of the
 step, where the implicit step evaluates the coupling); solver.step(state, control, dt); guard;
-outputs.
+outputs. StepOutput.stages times each part of it (STAGES, wall clock [ms]).
 """
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -37,7 +38,7 @@ from softhand_sim.physics.hands import HAND_CODE, SIDES, union_asset
 from softhand_sim.physics.model import build_model
 from softhand_sim.physics.rotations import quat_mul, quat_conj, quat_to_matrix
 from softhand_sim.scene import load_scene
-from softhand_sim.physics.solver import Solver
+from softhand_sim.physics.solver import STAGE_FIELDS, Solver
 from softhand_sim.physics.state import State
 
 # Divergence guard (robustness): a step is rejected when its state is not finite, when the
@@ -47,6 +48,12 @@ from softhand_sim.physics.state import State
 GUARD_MAX_KINETIC_ENERGY = 1000.0
 GUARD_CAP_RESIDUAL_FACTOR = 1e3
 DISPLAY_TRIANGLES = 3000  # /hand/skin_marker: a decimated skin keeps 10 Hz markers light
+
+# The stages of SimRuntime.step in order (StepOutput.stages): targets (object copies extrapolated
+# into the Control; bone targets enter it on receipt, set_bone_targets), the solver's
+# (solver.STAGE_FIELDS), guard (divergence checks + the good-state copy or restore), skin (the
+# embedded skin vertices), output (the StepOutput: poses, twists, contact list).
+STAGES = ("targets", *(name for name, _ in STAGE_FIELDS), "guard", "skin", "output")
 
 
 @dataclass
@@ -73,6 +80,7 @@ class StepOutput:
     warning: str = ""
     node_x: np.ndarray = field(default=None, repr=False)
     hands: dict = field(default_factory=dict)  # side -> HandOutput, every simulated hand
+    stages: dict = field(default_factory=dict)  # STAGES name -> wall time [ms] of this step's stage
 
 
 def hand_sides(params):
@@ -328,9 +336,13 @@ class SimRuntime:
         if not self.placed:
             return None
         nb = self.model.bone_count
+        clock = time.perf_counter
+        t0 = clock()
         self.last_t = t
         self._update_object_targets(t, dt)
+        t1 = clock()
         stats = self.solver.step(self.state, self.control, dt)
+        t2 = clock()
         self.steps += 1
         warning = self._guard(stats)
         rejected = bool(warning)
@@ -340,10 +352,12 @@ class SimRuntime:
             self.contacts.reset()
         else:
             self.good_state = self.state.copy()
+        t3 = clock()
+        self.solver.skin_positions(self.state, self._skin)
+        t4 = clock()
         body_v = self.state.body_v[nb:]
         accels = (body_v - self._prev_body_v) / dt
         self._prev_body_v = body_v.copy()
-        self.solver.skin_positions(self.state, self._skin)
         s = self.state
         layout = self.model.hands
         hands = {side: HandOutput(side=side, code=HAND_CODE[side], entered=self.hand_placed[h],
@@ -351,11 +365,16 @@ class SimRuntime:
                                   skin_vertices=self._skin[layout.skin(h)])
                  for h, side in enumerate(self.hands)}
         first = hands[self.hands[0]]
-        return StepOutput(
+        out = StepOutput(
             t=t + dt, bone_poses=first.bone_poses, object_names=self.object_names,
             object_poses=s.object_pose.copy(), object_twists=body_v.copy(), object_accels=accels,
             skin_vertices=first.skin_vertices, contacts=self.contacts.output(s.node_x, s.body_x, s.body_q),
             stats=stats, rejected=rejected, warning=warning, node_x=s.node_x, hands=hands)
+        t5 = clock()
+        # the solver's stages cover its step but for its bookkeeping (a few us): that goes to none
+        out.stages = {"targets": 1e3 * (t1 - t0), **{name: getattr(stats, f) for name, f in STAGE_FIELDS},
+                      "guard": 1e3 * (t3 - t2), "skin": 1e3 * (t4 - t3), "output": 1e3 * (t5 - t4)}
+        return out
 
     def _guard(self, stats):
         """'' if the new state is acceptable, else why the step is rejected."""

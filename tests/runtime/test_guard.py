@@ -14,7 +14,7 @@ from geometry_msgs.msg import PoseArray
 from tests.support.rosproc import RosGraph
 from softhand_sim.ros import msgs as rm
 from softhand_sim.params import load_params
-from softhand_sim.runtime import GUARD_CAP_RESIDUAL_FACTOR, GUARD_MAX_KINETIC_ENERGY, SimRuntime
+from softhand_sim.runtime import GUARD_CAP_RESIDUAL_FACTOR, GUARD_MAX_KINETIC_ENERGY, STAGES, SimRuntime
 from softhand_sim.ros.msgs import status_node
 
 DT = 1.0 / 60.0
@@ -91,7 +91,9 @@ def test_sim_node_reports_guard_in_diagnostics(ros_env):
     """sim_node with the 1-iteration CG of the previous test, fed hover bones then bones moved 10 cm:
     /diagnostics turns WARN with rejected_steps > 0 and the guard's message (last_guard_warning names the
     CG cap), the log has the warning, and every /hand/bones it publishes is the placed (last good) pose,
-    finite, never a rejected state."""
+    finite, never a rejected state. The same /diagnostics carry the tick's stage split (issue #20):
+    stage_<name>_ms_p50/p99 of every runtime and node stage, and tick_ms_p50/p99 (>= step_ms's)."""
+    from softhand_sim.sim_node import NODE_STAGES  # rclpy: only in this ROS test
     rt = SimRuntime(load_params("sim_node"))  # only for the rest skeleton
     targets = hover_targets(rt)
     moved = targets.copy()
@@ -133,3 +135,9 @@ def test_sim_node_reports_guard_in_diagnostics(ros_env):
     # every published skeleton is the placed one: the rejected states were never published
     assert np.abs(poses - poses[0]).max() < 1e-12
     assert np.allclose(poses[0, 0], targets[0], atol=1e-9)
+    for name in (*STAGES, *NODE_STAGES):  # the stages of the ticks that stepped (rejected or not)
+        p50, p99 = float(values[f"stage_{name}_ms_p50"]), float(values[f"stage_{name}_ms_p99"])
+        assert 0.0 <= p50 <= p99, (name, p50, p99)
+    # each tick's total includes its step, over the same window of ticks
+    assert float(values["step_ms_p50"]) <= float(values["tick_ms_p50"]) <= float(values["tick_ms_p99"])
+    assert float(values["stage_pcg_ms_p50"]) > 0.0 and float(values["stage_publish_ms_p50"]) > 0.0

@@ -2,7 +2,7 @@
 
     python -m softhand_sim.commands.bench [--scenario free|press|grasp] [--mesh coarse|fine|box]
                                  [--steps N] [--preconditioner factor|block_jacobi|jacobi]
-                                 [--all-preconditioners] [--hands 1|2|1,2] [--json]
+                                 [--all-preconditioners] [--hands 1|2|1,2] [--profile] [--json]
 
 Meshes: coarse / fine = the parametric hand model (handmodel.load_or_build_hand(resolution=...));
 box = the voxel box hand of bench_scenes (~850 tets, the paper's size; no hand builder needed).
@@ -13,6 +13,12 @@ time; self_contacts_median / self_collision_ms: the same for skin-skin contact (
 free_self: `free` with self contact on; fist: the tight fist of scenarios/self_contact.py).
 Timings: median and p99 of the whole step (wall clock, one thread: NUMBA_NUM_THREADS=1);
 setup = rotations + assembly (+ the preconditioner's refactorization), solve = PCG + advance.
+
+--profile (issue #20) splits the step into the solver's stages (solver.STAGE_FIELDS: collision,
+self_collision, assembly, factor, pcg, advance) plus `other` (the step's own bookkeeping and call
+overhead: the whole step minus its stages): per stage the median and p99 [ms] over the steps and
+its share of the total step time (sum over the steps; the shares add up to 1). In --json each
+row gets `stages`: {name: {median_ms, p99_ms, share}}.
 
 --hands 2: both hands in one model (issue #18; the left mirrored, 30 cm to the right hand's -y
 side): `free` moves both, `press` loads both hands' pads, `grasp` is both palms pressing and
@@ -268,9 +274,21 @@ class _TwoHandGrasp:
 SCENARIOS_TWO_HANDS = {"free": _TwoHands(_Free()), "press": _TwoHands(_Press()), "grasp": _TwoHandGrasp()}
 
 
-def run(scenario, mesh, steps, preconditioner, hands=1):
+def stage_profile(step_ms, stage_ms):
+    """{stage: {median_ms, p99_ms, share}} from the per-step totals step_ms (S,) [ms] and
+    stage_ms {name: (S,)} [ms]; `other` = step - the stages' sum, share = stage total / step total."""
+    step_ms = np.asarray(step_ms, float)
+    cols = {name: np.asarray(v, float) for name, v in stage_ms.items()}
+    cols["other"] = step_ms - sum(cols.values())
+    total = float(step_ms.sum())
+    return {name: {"median_ms": float(np.median(v)), "p99_ms": float(np.percentile(v, 99)),
+                   "share": float(v.sum() / total) if total > 0 else float("nan")}
+            for name, v in cols.items()}
+
+
+def run(scenario, mesh, steps, preconditioner, hands=1, profile=False):
     from softhand_sim.physics.model import build_model
-    from softhand_sim.physics.solver import Solver
+    from softhand_sim.physics.solver import STAGE_FIELDS, Solver
     asset, source = _asset(mesh)
     scenes = SCENARIOS if hands == 1 else SCENARIOS_TWO_HANDS
     if hands == 2:
@@ -294,6 +312,7 @@ def run(scenario, mesh, steps, preconditioner, hands=1):
     update = scenes[scenario](solver, state, control)
     ms, setup, solve, iters, contacts, coll, caps, refac = [], [], [], [], [], [], 0, 0
     self_n, self_ms = [], []
+    stage_ms = {name: [] for name, _ in STAGE_FIELDS}
     for k in range(steps):
         update(k, k * DT)
         t = time.perf_counter()
@@ -308,8 +327,10 @@ def run(scenario, mesh, steps, preconditioner, hands=1):
         self_ms.append(st.self_collision_ms)
         caps += st.hit_cap
         refac += st.refactored
+        for name, f in STAGE_FIELDS:
+            stage_ms[name].append(getattr(st, f))
     ms = np.array(ms)
-    return {
+    row = {
         "hands": hands, "mesh": mesh, "source": source, "tets": int(len(model.tets)), "dofs": int(model.dof_count),
         "nnz": int(len(model.indices)), "scenario": scenario, "preconditioner": preconditioner,
         "steps": steps, "median_ms": float(np.median(ms)), "p99_ms": float(np.percentile(ms, 99)),
@@ -322,6 +343,9 @@ def run(scenario, mesh, steps, preconditioner, hands=1):
         "compile_s": compile_s, "finite": bool(np.all(np.isfinite(state.node_x))),
         "paper_steps_per_s": PAPER_STEPS_PER_S,
     }
+    if profile:
+        row["stages"] = stage_profile(ms, stage_ms)
+    return row
 
 
 COLUMNS = ["hands", "scenario", "mesh", "tets", "dofs", "preconditioner", "median_ms", "p99_ms",
@@ -336,6 +360,19 @@ def format_table(rows):
                               for c in COLUMNS))
     lines.append(f"paper: {PAPER_STEPS_PER_S} steps/s (856 tets, one i7-5820K core; "
                  "Fig. 9: setup ~ solve ~ 10 ms)")
+    for r in rows:
+        if "stages" in r:
+            lines.append(format_profile(r))
+    return "\n".join(lines)
+
+
+def format_profile(row):
+    """The --profile block of one row: median, p99 and share of the step per stage."""
+    lines = [f"\nprofile: {row['scenario']}, {row['mesh']} ({row['tets']} tets), {row['hands']} hand(s), "
+             f"{row['preconditioner']}: step median {row['median_ms']:.3f} ms, p99 {row['p99_ms']:.3f} ms",
+             f"{'stage':>15} {'median_ms':>10} {'p99_ms':>10} {'share':>7}"]
+    for name, s in row["stages"].items():
+        lines.append(f"{name:>15} {s['median_ms']:>10.3f} {s['p99_ms']:>10.3f} {100 * s['share']:>6.1f}%")
     return "\n".join(lines)
 
 
@@ -348,6 +385,8 @@ def main(argv=None):
                     help="run every preconditioner (the default factor, block_jacobi, the paper's jacobi)")
     ap.add_argument("--steps", type=int, default=300)
     ap.add_argument("--hands", default="1", help="hands in the model: 1, 2 or 1,2 (both counts)")
+    ap.add_argument("--profile", action="store_true",
+                    help="split the step into its stages (median, p99, share of the step per stage)")
     ap.add_argument("--json", action="store_true")
     a = ap.parse_args(argv)
     if a.steps < 1:
@@ -358,7 +397,7 @@ def main(argv=None):
     except ValueError:
         ap.error(f"--hands {a.hands!r}: expected 1, 2 or 1,2")
     try:
-        rows = [run(s, m, a.steps, p, h) for h in counts for m in (a.mesh or ["coarse", "fine"])
+        rows = [run(s, m, a.steps, p, h, a.profile) for h in counts for m in (a.mesh or ["coarse", "fine"])
                 for s in (a.scenario or ["free", "press"]) for p in precs]
     except ValueError as e:
         ap.error(str(e))

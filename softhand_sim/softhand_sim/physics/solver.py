@@ -17,6 +17,9 @@ loads; control.py) and advances the State in place. Its stages, in this order:
   3. PCG       (M + dt^2 H) v = M v - dt grad U
   4. advance   positions and orientations by dt v
 Each term is one Python->numba call per step (not per element or CG iteration).
+StepStats times the stages (STAGE_FIELDS, wall clock): collision and self_collision (1.), assembly
+(2. and the system's finalisation), factor (the factor preconditioner's LDL^T refresh slice, between
+2. and 3.), pcg (3.), advance (4.); setup_ms = assembly + factor, solve_ms = pcg + advance.
 """
 import time
 from dataclasses import dataclass
@@ -32,15 +35,28 @@ from softhand_sim.physics.model import Model, build_model  # noqa: F401  (re-exp
 from softhand_sim.physics.rotations import integrate_rotation, quat_to_matrix
 
 
+# The stages of Solver.step in order, as (name, StepStats field): the split `softhand bench
+# --profile` and sim_node's /diagnostics report.
+STAGE_FIELDS = (("collision", "collision_ms"), ("self_collision", "self_collision_ms"),
+                ("assembly", "assembly_ms"), ("factor", "factor_ms"), ("pcg", "pcg_ms"),
+                ("advance", "advance_ms"))
+
+
 @dataclass
 class StepStats:
     cg_iters: int = 0
     residual: float = 0.0       # relative CG residual ||r|| / ||b||
     energy: float = 0.0         # potential energy U at the start of the step [J]
-    setup_ms: float = 0.0       # rotations + assembly of gradient and M + dt^2 H
-    solve_ms: float = 0.0       # PCG + advance
+    # wall times [ms] of the step's stages (time.perf_counter, contiguous: their sum is the step
+    # but for a few microseconds of bookkeeping); STAGE_FIELDS lists the finest split
+    setup_ms: float = 0.0       # assembly_ms + factor_ms
+    solve_ms: float = 0.0       # pcg_ms + advance_ms
     collision_ms: float = 0.0   # the collide stage: object contacts
     self_collision_ms: float = 0.0  # the collide stage: skin-skin contacts
+    assembly_ms: float = 0.0    # rotations + every energy term's gradient and Hessian + finalize_system
+    factor_ms: float = 0.0      # the factor preconditioner's LDL^T refresh / advance (~0 without it)
+    pcg_ms: float = 0.0         # PCG
+    advance_ms: float = 0.0     # positions and orientations by dt v
     hit_cap: bool = False       # CG stopped at cg_max_iterations
     refactored: bool = False    # a new factor preconditioner was published in this step (in setup)
     contacts: int = 0
@@ -198,12 +214,14 @@ class Solver:
     def step(self, state, control, dt):
         """Advance state by dt [s] in place under control (this step's inputs); returns StepStats."""
         m = self.model
-        t0 = time.perf_counter()
+        clock = time.perf_counter  # a handful of calls per step: ~0.1 us each
+        t0 = clock()
         self.collide(state)
-        t1 = time.perf_counter()
+        t1 = clock()
         energy = self.assemble(state, control)
         finalize_system(self.values, self.rhs, self.grad, state.v, dt, m.node_mass, m.body_mass,
                         state.body_q, m.body_inertia_local, m.diag_slot, m.body_slots, m.body_dof0)
+        t2 = clock()
         refactored = False
         if self.precond == pcg_mod.PRECOND_FACTOR:
             if not self.factor.valid:
@@ -212,23 +230,28 @@ class Solver:
             else:
                 catch_up = self._last_iters > self.refactor_iters and self.factor.slices > 1
                 refactored = self.factor.advance(self.values, 2 if catch_up else 1)
-        t2 = time.perf_counter()
+        t3 = clock()
         iters, res, cap = pcg_mod.pcg(
             m.indptr, m.indices, self.values, self.rhs, state.v, self.cg_tol, self.cg_max_iter,
             self.precond, m.diag_slot, m.node_slots, m.body_slots, m.body_dof0, self._diag_inv,
             self._node_inv, self._body_inv, self._r, self._z, self._p, self._Ap, self.factor.arrays,
             self._triplets)
+        t4 = clock()
         self._last_iters = iters
         _advance(state.node_x, state.v, state.body_x, state.body_q, state.body_pose,
                  m.body_com_local, dt, m.body_dof0)
-        t3 = time.perf_counter()
+        t5 = clock()
         sc = self.self_contacts
+        self_ms = sc.collision_ms if sc is not None else 0.0  # timed inside the collide stage
+        assembly_ms, factor_ms = (t2 - t1) * 1e3, (t3 - t2) * 1e3
+        pcg_ms, advance_ms = (t4 - t3) * 1e3, (t5 - t4) * 1e3
         self.last_stats = StepStats(
             cg_iters=int(iters), residual=float(res), energy=float(energy),
-            setup_ms=(t2 - t1) * 1e3, solve_ms=(t3 - t2) * 1e3, collision_ms=(t1 - t0) * 1e3 - (sc.collision_ms if sc is not None else 0.0),
+            setup_ms=assembly_ms + factor_ms, solve_ms=pcg_ms + advance_ms,
+            collision_ms=max(0.0, (t1 - t0) * 1e3 - self_ms), self_collision_ms=self_ms,
+            assembly_ms=assembly_ms, factor_ms=factor_ms, pcg_ms=pcg_ms, advance_ms=advance_ms,
             hit_cap=bool(cap), refactored=refactored,
             contacts=int(self.contacts.count) if self.contacts is not None else 0,
-            self_collision_ms=sc.collision_ms if sc is not None else 0.0,
             self_contacts=int(sc.count) if sc is not None else 0)
         return self.last_stats
 

@@ -1,0 +1,112 @@
+"""The per-stage split of Solver.step (issue #20) and `softhand bench --profile`: every stage is
+timed, none twice, and together they account for the step (no timing thresholds: only how the
+stages relate to each other and to the step measured around them)."""
+import json
+import time
+
+import numpy as np
+import pytest
+
+from softhand_sim.commands import bench
+from softhand_sim.handmodel import load_or_build_hand
+from softhand_sim.physics.model import build_model
+from softhand_sim.physics.solver import STAGE_FIELDS, Solver
+
+STEPS = 40
+# The stages are contiguous perf_counter intervals inside Solver.step; outside them are only its
+# bookkeeping (a StepStats, a few attribute reads: ~10 us of a ~1-10 ms coarse step). Summed over
+# the steps they must cover 90% of the step measured around the call (measured: 99-100%):
+# dropping the assembly or the factor stage (each >~25% of a coarse step) falls below that.
+MIN_COVERED = 0.9
+
+
+def run_scenario(name, steps=STEPS):
+    """(per-step totals [ms], per-step StepStats) of bench scenario `name` on the coarse hand."""
+    asset = load_or_build_hand(resolution="coarse")
+    scenario = bench.SCENARIOS[name]
+    objects = scenario.objects(asset)
+    params = getattr(scenario, "params", dict)()
+    model = build_model(asset, params, objects=objects or ())
+    contacts = getattr(scenario, "contacts", lambda m: None)(model)
+    self_contacts = getattr(scenario, "self_contacts", lambda m: None)(model)
+    solver = Solver(model, contacts=contacts, self_contacts=self_contacts)
+    state, control = model.initial_state(), model.control()
+    update = scenario(solver, state, control)
+    totals, stats = [], []
+    for k in range(steps):
+        update(k, k * bench.DT)
+        t0 = time.perf_counter()
+        st = solver.step(state, control, bench.DT)
+        totals.append(1e3 * (time.perf_counter() - t0))
+        stats.append(st)
+    assert np.all(np.isfinite(state.node_x))
+    return np.array(totals), stats
+
+
+def stage_matrix(stats):
+    """(steps, stages) [ms] in STAGE_FIELDS order."""
+    return np.array([[getattr(st, f) for _, f in STAGE_FIELDS] for st in stats])
+
+
+@pytest.mark.parametrize("name", ["free", "grasp", "free_self"])
+def test_stages_account_for_the_step(name):
+    """free (no contact system), grasp (object contacts), free_self (skin-skin contacts only): each
+    stage >= 0, their sum <= the step measured around the call and >= MIN_COVERED of it over the
+    run; setup_ms / solve_ms are exactly assembly + factor / pcg + advance."""
+    totals, stats = run_scenario(name)
+    stages = stage_matrix(stats)
+    names = [n for n, _ in STAGE_FIELDS]
+    covered = stages.sum() / totals.sum()
+    print(f"{name}: step median {np.median(totals):.3f} ms, stages cover {100 * covered:.2f}%; medians",
+          dict(zip(names, np.round(np.median(stages, axis=0), 4))))
+    assert np.all(np.isfinite(stages)) and np.all(stages >= 0.0)
+    assert np.all(stages.sum(axis=1) <= totals), (stages.sum(axis=1) - totals).max()
+    assert covered >= MIN_COVERED
+    for st in stats:
+        assert st.setup_ms == st.assembly_ms + st.factor_ms
+        assert st.solve_ms == st.pcg_ms + st.advance_ms
+    col = dict(zip(names, stages.T))
+    for stage in ("assembly", "factor", "pcg", "advance"):  # each runs a kernel every step
+        assert np.all(col[stage] > 0.0), stage
+    if name == "free":  # no contact system at all: only the two `is None` checks of collide
+        assert np.all(col["self_collision"] == 0.0)
+    if name == "grasp":
+        assert max(st.contacts for st in stats) > 0
+        assert np.all(col["self_collision"] == 0.0)
+    if name == "free_self":
+        # the skin-skin pass is timed once, as self_collision, not again in collision (which
+        # holds only the `contacts is None` check here)
+        assert col["collision"].sum() < 0.5 * col["self_collision"].sum()
+
+
+def test_stage_profile_by_hand():
+    """bench.stage_profile on numbers worked by hand: `other` is the step minus the stages, shares
+    are totals over the step's total and add up to 1."""
+    prof = bench.stage_profile([2.0, 4.0], {"a": [1.0, 1.0], "b": [0.5, 2.0]})
+    assert list(prof) == ["a", "b", "other"]
+    assert prof["other"]["median_ms"] == pytest.approx(0.75)  # other = [0.5, 1.0]
+    assert prof["b"]["median_ms"] == pytest.approx(1.25)
+    assert prof["b"]["p99_ms"] == pytest.approx(0.5 + 0.99 * 1.5)
+    assert prof["a"]["share"] == pytest.approx(2.0 / 6.0)
+    assert prof["b"]["share"] == pytest.approx(2.5 / 6.0)
+    assert prof["other"]["share"] == pytest.approx(1.5 / 6.0)
+
+
+def test_bench_profile_json_has_every_stage(capsys):
+    """`softhand bench --profile --json --steps N`: each row has every stage with a median <= p99
+    and a share in [0, 1], the shares adding up to 1; without --profile the rows are as before."""
+    assert bench.main(["--profile", "--json", "--steps", "5", "--mesh", "coarse", "--scenario", "free"]) == 0
+    rows = json.loads(capsys.readouterr().out)
+    assert len(rows) == 1
+    stages = rows[0]["stages"]
+    assert list(stages) == [n for n, _ in STAGE_FIELDS] + ["other"]
+    for name, s in stages.items():
+        assert set(s) == {"median_ms", "p99_ms", "share"}, name
+        assert 0.0 <= s["median_ms"] <= s["p99_ms"], name
+        assert 0.0 <= s["share"] <= 1.0, name
+    assert sum(s["share"] for s in stages.values()) == pytest.approx(1.0)
+    assert bench.main(["--json", "--steps", "2", "--mesh", "coarse", "--scenario", "free"]) == 0
+    assert "stages" not in json.loads(capsys.readouterr().out)[0]
+    assert bench.main(["--profile", "--steps", "2", "--mesh", "coarse", "--scenario", "free"]) == 0
+    text = capsys.readouterr().out
+    assert "profile: free, coarse" in text and all(f" {n} " in text for n in stages)
