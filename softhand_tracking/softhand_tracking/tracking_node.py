@@ -27,7 +27,7 @@ from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 from softhand_sim.ros.common import (LATEST_QOS, PUB_QOS, DiagnosticsPublisher, RateMeter,
-                                     fail, run_node, split_cli)
+                                     fail, run_node, split_cli, take_pending)
 from softhand_sim.ros.msgs import pose_array_from_numpy, pose_array_to_numpy, stamp_to_seconds
 from softhand_sim.ros.params import declare_node_params
 from softhand_sim.timing import FixedRateScheduler, StepStats
@@ -68,7 +68,7 @@ class TrackingNode(Node):
                                  sim_timeout=p["sim_timeout"])
         warm_up()  # numba kernels compiled/loaded before the first frame, not during it
         self.pub = self.create_publisher(PoseArray, "/hand/intermediate_bones", PUB_QOS)
-        self.create_subscription(PoseArray, "/tracker/hand_joints", self.on_tracker, TRACKER_QOS)
+        self.tracker_sub = self.create_subscription(PoseArray, "/tracker/hand_joints", self.on_tracker, TRACKER_QOS)
         self.create_subscription(PoseArray, "/hand/bones", self.on_sim_bones, LATEST_QOS)
         # contact gates the feedback (parameter feedback: contact); only the count is read
         self.create_subscription(PointCloud2, "/hand/contacts", self.on_contacts, LATEST_QOS)
@@ -76,6 +76,7 @@ class TrackingNode(Node):
         self.step_ms = StepStats(window=int(5 * p["rate"]))  # [ms] compute per step
         self.published = 0
         self.lead_ns = int(round(p["lead"] * 1e9))
+        self.drain_budget_s = 0.5 / p["rate"]  # [s] per tracker callback for the frames queued behind
         self.frames_received = 0
         self.bad_sim_messages = 0
         # late_steps: run late by a catch-up; skipped_steps: given up, more than MAX_CATCH_UP_S behind
@@ -93,6 +94,14 @@ class TrackingNode(Node):
         return self.get_clock().now().nanoseconds * 1e-9
 
     def on_tracker(self, msg: PoseArray) -> None:
+        """A tracker frame, then the frames queued behind it for up to half a loop period
+        (ros.common.take_pending): under load the executor's one message per cycle falls behind
+        the tracker, and a flood must not stop the loop."""
+        self.on_frame(msg)
+        for queued in take_pending(self.tracker_sub, self.drain_budget_s):
+            self.on_frame(queued)
+
+    def on_frame(self, msg: PoseArray) -> None:
         self.frames_received += 1
         joints = pose_array_to_numpy(msg)
         was_holding = self.loop.holding

@@ -112,6 +112,10 @@ def test_sim_node_tf_heard_and_recorded(ros_env, tmp_path):
         bones = g.listen("/hand/bones", PoseArray, PUB_QOS)
         pub = g.publisher("/hand/intermediate_bones", PoseArray)
         rec = g.start(["softhand-record", "-o", str(bag), "--topics", "/hand/bones", "/tf", "/tf_static"])
+        # the recorder subscribes before sim_node exists: sim_node is ready within ~1.5 s with the
+        # kernels cached, sooner than the recorder starts, and then its first messages were missed
+        g.wait_until(lambda: all(f"subscribed {t}" in rec.output() for t in ("/hand/bones", "/tf", "/tf_static")),
+                     60, "recorder subscriptions", rec)
         sim = g.start(["softhand-sim"])
         g.wait_matched(pub, timeout=300, proc=sim)  # first run of a checkout: numba compiles
         k = 0

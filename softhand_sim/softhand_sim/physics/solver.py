@@ -29,9 +29,8 @@ from numba import njit
 
 from softhand_sim.physics import pcg as pcg_mod
 from softhand_sim.physics.energies import bone_tissue, gravity, joints, rigid_coupling, tissue
-from softhand_sim.physics.control import Control  # noqa: F401  (re-export for the documented API)
+from softhand_sim.physics.embedded import embedded_positions
 from softhand_sim.physics.energies.inertia import finalize_system, kinetic_energy
-from softhand_sim.physics.model import Model, build_model  # noqa: F401  (re-export for the documented API)
 from softhand_sim.physics.rotations import integrate_rotation, quat_to_matrix
 
 
@@ -81,18 +80,6 @@ def _advance(x, v, body_x, body_q, body_pose, body_com_local, dt, body_dof0):
             body_pose[b, i] = origin[i]
         for i in range(4):
             body_pose[b, 3 + i] = body_q[b, i]
-
-
-@njit(cache=True)
-def skin_positions_kernel(x, tets, skin_tet, skin_bary, out):
-    """Embedded skin vertices (V,3) [m] by barycentric interpolation (Sect. 5.1)."""
-    for s in range(skin_tet.shape[0]):
-        t = skin_tet[s]
-        for i in range(3):
-            acc = 0.0
-            for a in range(4):
-                acc += skin_bary[s, a] * x[tets[t, a], i]
-            out[s, i] = acc
 
 
 def hand_block_groups(model):
@@ -260,7 +247,7 @@ class Solver:
         m = self.model
         if out is None:
             out = np.empty((len(m.skin_tet), 3))
-        skin_positions_kernel(state.node_x, m.tets, m.skin_tet, m.skin_bary, out)
+        embedded_positions(state.node_x, m.tets, m.skin_tet, m.skin_bary, out)  # Sect. 5.1
         return out
 
     def kinetic_energy(self, state):
