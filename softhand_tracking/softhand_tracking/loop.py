@@ -435,9 +435,17 @@ class TrackingLoop:
         self.bones.sim_gain = min(want, g + step) if want > g else max(want, g - step)
 
 
-def warm_up() -> None:
-    """Compile (or load from numba's cache) every kernel of the loop now, so that the first
-    tracker frame and the first step of a node do not stall it for tens of milliseconds."""
+def warm_up(loop_config: LoopConfig | None = None, adapter_config=None) -> None:
+    """Compile (or load from numba's cache) every kernel a tracking node calls, now: the bones'
+    step, velocities and extrapolation, the adapter's bone frames (both sides), and a throwaway
+    TrackingLoop of the node's configuration driven through tracked frames, sim bones and
+    contacts (the feedback path). Anything left to the first call compiles mid-run: on a fresh
+    checkout the first contact of the first demo held the hand for over 0.1 s and kicked the ball
+    out of the grasp."""
+    from softhand_sim.handmodel.kinematics import forward_kinematics
+    from softhand_tracking.adapter import AdapterConfig, TrackerAdapter, bone_frames
+    from softhand_sim.physics.rotations import quat_to_matrix
+
     bones = IntermediateBones(LoopConfig())
     poses = np.zeros((BONE_COUNT, 7))
     poses[:, 6] = 1.0
@@ -446,3 +454,20 @@ def warm_up() -> None:
     bones.step()
     pose_velocity(poses, poses, bones.com_local, 0.01)
     extrapolate_poses(poses, bones.vel, bones.com_local, 0.01)
+
+    adapter_config = adapter_config if adapter_config is not None else AdapterConfig()
+    joints, sim_bones = forward_kinematics(np.array([0.0, 0.0, 0.15, 0.0, 0.0, 0.0, 1.0]), np.full((5, 4), 0.2))
+    for hand in ("right", "left"):
+        bone_frames(joints[:, :3], hand)
+    # the frame in the tracker's coordinates, so that the adapter maps it back onto the hand above
+    w = np.asarray(adapter_config.world_from_tracker, dtype=np.float64)
+    r = quat_to_matrix(w[3:].copy())
+    tracked = joints.copy()
+    tracked[:, :3] = (joints[:, :3] - w[:3]) @ r
+    loop = TrackingLoop(loop_config, TrackerAdapter(adapter_config))
+    for k in range(4):
+        t = 0.01 * k
+        loop.on_tracker(tracked, t, t)
+        loop.on_sim_bones(sim_bones, t)
+        loop.on_contacts(3 if k > 1 else 0, t)
+        loop.step(t + 0.004)

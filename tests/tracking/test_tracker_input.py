@@ -122,11 +122,15 @@ def counts(diags):
 
 
 def settle_diag(g, diags, node):
-    """Counters from a tracking_node /diagnostics issued after everything sent so far was processed."""
-    def n_tracking():
-        return sum(status_node(st.name) == "tracking_node" for m in diags.msgs for st in m.status)
-    n = n_tracking()
-    g.wait_until(lambda: n_tracking() >= n + 2, 15, "fresh tracking_node diagnostics", node)
+    """Counters from a tracking_node /diagnostics issued after everything sent so far was processed:
+    two fresh reports, the last two with the same frames_received (the node's queue, up to 1000
+    frames deep, is drained; a fixed wait was too short after a burst on a loaded machine)."""
+    def received():
+        return [int(rm.diagnostic_values(st)["frames_received"]) for m in diags.msgs for st in m.status
+                if status_node(st.name) == "tracking_node"]
+    n = len(received())
+    g.wait_until(lambda: len(r := received()) >= n + 2 and r[-1] == r[-2], 30,
+                 "tracking_node diagnostics with its frame count settled", node)
     return counts(diags)
 
 
