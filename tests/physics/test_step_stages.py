@@ -10,14 +10,15 @@ import pytest
 from softhand_sim.commands import bench
 from softhand_sim.handmodel import load_or_build_hand
 from softhand_sim.physics.model import build_model
+from tests.support.stage_checks import check_stage_coverage
 from softhand_sim.physics.solver import STAGE_FIELDS, Solver
 
 STEPS = 40
 # The stages are contiguous perf_counter intervals inside Solver.step; outside them are only its
 # bookkeeping (a StepStats, a few attribute reads: ~10 us of a ~1-10 ms coarse step). Summed over
 # the steps they must cover 90% of the step measured around the call (measured: 99-100%):
-# dropping the assembly or the factor stage (each >~25% of a coarse step) falls below that.
-MIN_COVERED = 0.9
+# dropping the assembly or the factor stage (each >~25% of a coarse step) falls below that
+# (MIN_COVERED in tests/support/stage_checks.py, shared with tests/runtime/test_runtime_stages.py).
 
 
 def run_scenario(name, steps=STEPS):
@@ -56,12 +57,7 @@ def test_stages_account_for_the_step(name):
     totals, stats = run_scenario(name)
     stages = stage_matrix(stats)
     names = [n for n, _ in STAGE_FIELDS]
-    covered = stages.sum() / totals.sum()
-    print(f"{name}: step median {np.median(totals):.3f} ms, stages cover {100 * covered:.2f}%; medians",
-          dict(zip(names, np.round(np.median(stages, axis=0), 4))))
-    assert np.all(np.isfinite(stages)) and np.all(stages >= 0.0)
-    assert np.all(stages.sum(axis=1) <= totals), (stages.sum(axis=1) - totals).max()
-    assert covered >= MIN_COVERED
+    check_stage_coverage(f"{name}: ", totals, stages, names)
     for st in stats:
         assert st.setup_ms == st.assembly_ms + st.factor_ms
         assert st.solve_ms == st.pcg_ms + st.advance_ms

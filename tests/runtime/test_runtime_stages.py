@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from softhand_sim.params import load_params
+from tests.support.stage_checks import check_stage_coverage
 from softhand_sim.physics.solver import STAGE_FIELDS
 from softhand_sim.runtime import STAGES, SimRuntime
 
@@ -15,7 +16,6 @@ STEPS = 40
 # Outside the timed stages SimRuntime.step only reads a few attributes and builds a dict (~10 us
 # of a ~2-10 ms coarse step): over the run the stages must cover 90% of the step measured around
 # the call; dropping the solver's assembly or factor (each >~30% of it) falls below.
-MIN_COVERED = 0.9
 
 
 @pytest.fixture(scope="module")
@@ -44,12 +44,7 @@ def test_runtime_stages_account_for_the_step(params):
             assert out.stages[name] == getattr(out.stats, field), name
         stages.append([out.stages[n] for n in STAGES])
     totals, stages = np.array(totals), np.array(stages)
-    covered = stages.sum() / totals.sum()
-    print(f"step median {np.median(totals):.3f} ms, stages cover {100 * covered:.2f}%; medians",
-          dict(zip(STAGES, np.round(np.median(stages, axis=0), 4))))
-    assert np.all(np.isfinite(stages)) and np.all(stages >= 0.0)
-    assert np.all(stages.sum(axis=1) <= totals), (stages.sum(axis=1) - totals).max()
-    assert covered >= MIN_COVERED
+    check_stage_coverage("", totals, stages, STAGES)
     for name in ("targets", "guard", "skin", "output"):  # the runtime's own stages run every step
         assert np.all(stages[:, STAGES.index(name)] > 0.0), name
 
