@@ -102,6 +102,15 @@ class StepStats:
         """q-th percentile (0..100, numpy's linear interpolation) of the window; NaN if empty."""
         return float(np.percentile(self.values(), q)) if self._values else math.nan
 
+    def percentiles(self, *qs: float) -> tuple:
+        """Several percentiles (0..100, the rule of `percentile`) from one sort: np.percentile costs
+        ~0.2 ms a call, ~5 ms for sim_node's dozen stages in each /diagnostics report."""
+        if not self._values:
+            return tuple(math.nan for _ in qs)
+        window = np.sort(self.values())
+        at = np.interp(np.array(qs, dtype=float) / 100.0 * (len(window) - 1), np.arange(len(window)), window)
+        return tuple(float(v) for v in at)
+
     def median(self) -> float:
         return self.percentile(50.0)
 
