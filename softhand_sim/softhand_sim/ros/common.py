@@ -31,19 +31,20 @@ from rclpy.utilities import remove_ros_args
 
 from softhand_sim.params import ParamError
 from softhand_sim.ros.msgs import diagnostic_array, diagnostic_name, diagnostic_status
+from softhand_sim.topics import LATCHED_TOPICS, TOPIC_TYPES  # noqa: F401 (the nodes import them from here)
 
 # ------------------------------------------------------------------------------------------- QoS
 
 #: Every softhand publisher (docs/INTERFACE.md): reliable, volatile, keep last 10.
 PUB_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
                      reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE)
-#: /hand/skin_mesh publisher and its subscribers: published once, kept for late joiners.
+#: /hand/{side}/skin_mesh publisher and its subscribers: published once, kept for late joiners.
 LATCHED_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
                          reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
-#: /tracker/hand_joints subscription: best effort so that any tracker (sensor-data QoS) matches.
+#: /tracker/{side}/hand_joints subscription: best effort so that any tracker (sensor-data QoS) matches.
 SENSOR_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=5,
                         reliability=ReliabilityPolicy.BEST_EFFORT, durability=DurabilityPolicy.VOLATILE)
-#: Subscriptions to state topics (/hand/bones, /world/object_states, ...): only the latest matters,
+#: Subscriptions to state topics (/hand/{side}/bones, /world/object_states, ...): only the latest matters,
 #: so best effort: a lost packet is not resent behind newer states. Reliable, a reader delivers in
 #: order and waits for the resend of a lost sample (the writer's next heartbeat): with 2 % loss
 #: between hosts the reliable recorder got the targets 0.3-1.0 s late at the median, the best-effort
@@ -56,26 +57,8 @@ RECORD_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000,
 
 # ---------------------------------------------------------------------------------------- topics
 
-#: docs/INTERFACE.md topic table: topic -> ROS type name.
-TOPIC_TYPES = {
-    "/tracker/hand_joints": "geometry_msgs/msg/PoseArray",
-    "/hand/intermediate_bones": "geometry_msgs/msg/PoseArray",
-    "/hand/bones": "geometry_msgs/msg/PoseArray",
-    "/hand/object_states": "trajectory_msgs/msg/MultiDOFJointTrajectory",
-    "/world/object_states": "trajectory_msgs/msg/MultiDOFJointTrajectory",
-    "/hand/skin_vertices": "sensor_msgs/msg/PointCloud2",
-    "/hand/skin_mesh": "shape_msgs/msg/Mesh",
-    "/hand/skin_marker": "visualization_msgs/msg/Marker",
-    "/hand/contacts": "sensor_msgs/msg/PointCloud2",
-    "/hand/contact_markers": "visualization_msgs/msg/MarkerArray",
-    "/world/markers": "visualization_msgs/msg/MarkerArray",
-    "/diagnostics": "diagnostic_msgs/msg/DiagnosticArray",
-    # built into the venv by tools/build_tf2_msgs.py; may be missing (no compiler): see ros/tf.py
-    "/tf": "tf2_msgs/msg/TFMessage",
-    "/tf_static": "tf2_msgs/msg/TFMessage",
-}
-#: Topics whose publisher is transient local (subscribe with LATCHED_QOS to get the kept sample).
-LATCHED_TOPICS = frozenset({"/hand/skin_mesh", "/tf_static"})
+# TOPIC_TYPES (topic -> ROS type, both hands' topics) and LATCHED_TOPICS live in softhand_sim.topics
+# (no rclpy there: the bag readers use them too) and are imported above for the nodes.
 
 
 def message_class(type_name: str):

@@ -190,11 +190,12 @@ _FIELD_DTYPES = {
 }
 _DTYPE_FIELDS = {np.dtype(v): k for k, v in _FIELD_DTYPES.items()}
 
-# /hand/contacts layout (docs/INTERFACE.md): 9 float32, object uint32, slip uint8, padded to 4 bytes.
+# /hand/contacts layout (docs/INTERFACE.md): 9 float32, object uint32, slip uint8, hand uint8
+# (0 right, 1 left), padded to 4 bytes.
 CONTACT_DTYPE = np.dtype({
-    "names": ["x", "y", "z", "nx", "ny", "nz", "fx", "fy", "fz", "object", "slip"],
-    "formats": [np.float32] * 9 + [np.uint32, np.uint8],
-    "offsets": [0, 4, 8, 12, 16, 20, 24, 28, 32, 36, 40],
+    "names": ["x", "y", "z", "nx", "ny", "nz", "fx", "fy", "fz", "object", "slip", "hand"],
+    "formats": [np.float32] * 9 + [np.uint32, np.uint8, np.uint8],
+    "offsets": [0, 4, 8, 12, 16, 20, 24, 28, 32, 36, 40, 41],
     "itemsize": 44,
 })
 XYZ_DTYPE = np.dtype({"names": ["x", "y", "z"], "formats": [np.float32] * 3, "offsets": [0, 4, 8], "itemsize": 12})
@@ -261,11 +262,12 @@ def xyz_cloud_to_numpy(msg) -> np.ndarray:
 
 
 def contacts_cloud_from_numpy(points, normals, forces, objects, slip, stamp,
-                              frame_id: str = WORLD_FRAME) -> PointCloud2:
+                              frame_id: str = WORLD_FRAME, hand=None) -> PointCloud2:
     """/hand/contacts PointCloud2: one point per active contact.
 
     points (n, 3) [m], normals (n, 3) unit, forces (n, 3) [N] (force on the hand), objects (n,)
-    object index (uint32), slip (n,) 0 stick / 1 slip (uint8).
+    object index (uint32), slip (n,) 0 stick / 1 slip (uint8), hand (n,) 0 right / 1 left
+    (uint8; None: all right).
     """
     p = _check_rows("points", points, 3)
     n = p.shape[0]
@@ -273,7 +275,8 @@ def contacts_cloud_from_numpy(points, normals, forces, objects, slip, stamp,
     frc = _check_rows("forces", forces, 3)
     obj = np.asarray(objects).reshape(-1)
     slp = np.asarray(slip).reshape(-1)
-    for label, arr in (("normals", nrm), ("forces", frc), ("objects", obj), ("slip", slp)):
+    hnd = np.zeros(n, np.uint8) if hand is None else np.asarray(hand).reshape(-1)
+    for label, arr in (("normals", nrm), ("forces", frc), ("objects", obj), ("slip", slp), ("hand", hnd)):
         if arr.shape[0] != n:
             raise ValueError(f"{label} has {arr.shape[0]} rows for {n} contact points")
     pts = np.zeros(n, dtype=CONTACT_DTYPE)
@@ -283,13 +286,16 @@ def contacts_cloud_from_numpy(points, normals, forces, objects, slip, stamp,
         pts["f" + axis] = frc[:, i]
     pts["object"] = obj.astype(np.uint32)
     pts["slip"] = slp.astype(np.uint8)
+    pts["hand"] = hnd.astype(np.uint8)
     return pointcloud_from_structured(pts, stamp, frame_id)
 
 
 def contacts_cloud_to_numpy(msg) -> dict:
-    """Dict of arrays from a /hand/contacts cloud: points, normals, forces (n,3) f8, object (n,) u4, slip (n,) u1."""
+    """Dict of arrays from a /hand/contacts cloud: points, normals, forces (n,3) f8, object (n,) u4,
+    slip (n,) u1, hand (n,) u1 (0 right, 1 left; all 0 in single-hand recordings made before the
+    field existed)."""
     pts = pointcloud_to_structured(msg)
-    missing = [k for k in CONTACT_DTYPE.names if k not in pts.dtype.names]
+    missing = [k for k in CONTACT_DTYPE.names if k not in pts.dtype.names and k != "hand"]
     if missing:
         raise ValueError(f"contacts cloud lacks fields {missing}")
 
@@ -297,7 +303,8 @@ def contacts_cloud_to_numpy(msg) -> dict:
         return np.stack([pts[prefix + a] for a in "xyz"], axis=1).astype(np.float64)
 
     return {"points": vec(""), "normals": vec("n"), "forces": vec("f"),
-            "object": pts["object"].astype(np.uint32), "slip": pts["slip"].astype(np.uint8)}
+            "object": pts["object"].astype(np.uint32), "slip": pts["slip"].astype(np.uint8),
+            "hand": (pts["hand"].astype(np.uint8) if "hand" in pts.dtype.names else np.zeros(len(pts), np.uint8))}
 
 
 # ------------------------------------------------------------------------------- meshes, markers
