@@ -89,3 +89,81 @@ def test_summary_says_when_sizing_failed_and_when_nothing_was_reported(tmp_path)
     write_bag(tmp_path / "none", [_diagnostics_record(T0_NS, [_sim_status({}, node="tracking_node")])])
     none = summarize_run(tmp_path / "none")
     assert none["hand_measures"] == {} and "not reported" in hand_measures_line(none["hand_measures"])
+
+
+# ------------------------------------------------------------------ two hands
+
+def _pose_array_record(topic, t_ns, n):
+    from softhand_sim.ros.bagio import TYPESTORE, serialize
+
+    T = TYPESTORE.types
+    header = T["std_msgs/msg/Header"](stamp=T["builtin_interfaces/msg/Time"](sec=t_ns // 10**9, nanosec=t_ns % 10**9),
+                                      frame_id="world")
+    pose = T["geometry_msgs/msg/Pose"](position=T["geometry_msgs/msg/Point"](x=0.0, y=0.0, z=0.0),
+                                       orientation=T["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=0.0, w=1.0))
+    msg = T["geometry_msgs/msg/PoseArray"](header=header, poses=[pose] * n)
+    return topic, "geometry_msgs/msg/PoseArray", t_ns, serialize(msg, "geometry_msgs/msg/PoseArray")
+
+
+def _contacts_record(t_ns, hands):
+    """A /hand/contacts cloud as sim_node builds it, one contact per entry of `hands` (0 right, 1 left)."""
+    import numpy as np
+    from rclpy.serialization import serialize_message
+
+    from softhand_sim.ros import msgs as rm
+
+    n = len(hands)
+    msg = rm.contacts_cloud_from_numpy(np.zeros((n, 3)), np.tile([0.0, 0.0, 1.0], (n, 1)), np.zeros((n, 3)),
+                                       np.zeros(n), np.zeros(n), rm.stamp_from_seconds(t_ns * 1e-9), hand=hands)
+    return "/hand/contacts", "sensor_msgs/msg/PointCloud2", t_ns, serialize_message(msg)
+
+
+def test_summary_counts_each_hand_apart(tmp_path):
+    """A two-hand recording: 30 right and 20 left tracker frames, bones for both, the two tracking
+    nodes' last counts (tracking_node and tracking_node_left, told apart by their `hand` value), a
+    contact cloud with 3 right and 2 left contacts. The summary gives each hand its own counts,
+    latency and contacts, and the sums at the top level."""
+    from softhand_sim.commands.run_summary import summarize_run
+    from softhand_sim.ros.bagio import write_bag
+    from softhand_sim.ros.msgs import diagnostic_name, diagnostic_status
+
+    ms = 10**6
+    records = []
+    for k in range(30):
+        records.append(_pose_array_record("/tracker/right/hand_joints", T0_NS + k * 10 * ms, 26))
+    for k in range(20):
+        records.append(_pose_array_record("/tracker/left/hand_joints", T0_NS + 5 * ms + k * 10 * ms, 26))
+    for k in range(20):
+        records.append(_pose_array_record("/hand/right/bones", T0_NS + 2 * ms + k * 16 * ms, 16))
+        records.append(_pose_array_record("/hand/left/bones", T0_NS + 3 * ms + k * 16 * ms, 16))
+    records.append(_contacts_record(T0_NS + 100 * ms, [0, 1, 0, 1, 0]))
+
+    def tracking(node, hand, n):
+        return diagnostic_status(diagnostic_name(node), {"hand": hand, "frames_received": n, "frames_accepted": n,
+                                                         "frames_rejected": 0}, hardware_id="softhand@test")
+    records.append(_diagnostics_record(T0_NS + 400 * ms, [tracking("tracking_node", "right", 30),
+                                                          tracking("tracking_node_left", "left", 20)]))
+    records.sort(key=lambda r: r[2])
+    write_bag(tmp_path / "two", records)
+    s = summarize_run(tmp_path / "two")
+    assert set(s["hands"]) == {"right", "left"}
+    right, left = s["hands"]["right"], s["hands"]["left"]
+    assert right["tracker_frames"] == {"recorded": 30, "received": 30, "accepted": 30, "rejected": 0}
+    assert left["tracker_frames"] == {"recorded": 20, "received": 20, "accepted": 20, "rejected": 0}
+    assert s["tracker_frames"] == {"recorded": 50, "received": 50, "accepted": 50, "rejected": 0}
+    assert right["bones_messages"] == left["bones_messages"] == 20
+    assert (right["max_contacts"], left["max_contacts"], s["max_contacts"]) == (3, 2, 5)
+    assert 0 < right["latency_ms_p50"] <= 16.0 and 0 < left["latency_ms_p50"] <= 16.0
+
+
+def test_summary_of_a_one_hand_run_has_only_that_hand(tmp_path):
+    """A right-hand run recorded nothing on the left topics: `hands` has the right hand only."""
+    from softhand_sim.commands.run_summary import summarize_run
+    from softhand_sim.ros.bagio import write_bag
+
+    records = [_pose_array_record("/tracker/right/hand_joints", T0_NS + k * 10**7, 26) for k in range(5)]
+    records += [_pose_array_record("/hand/right/bones", T0_NS + 10**6 + k * 10**7, 16) for k in range(5)]
+    records.sort(key=lambda r: r[2])
+    write_bag(tmp_path / "one", records)
+    s = summarize_run(tmp_path / "one")
+    assert list(s["hands"]) == ["right"] and s["tracker_frames"]["recorded"] == 5

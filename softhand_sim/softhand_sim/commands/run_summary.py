@@ -2,18 +2,24 @@
 
 Measured, not reported by the nodes alone:
 - rates [Hz] of every recorded topic from the recorder's receive times;
-- tracker -> /hand/bones latency: for each tracker frame received after the first /hand/bones,
-  the time until the next /hand/bones message (the delay before the simulated skeleton can
-  reflect that frame; it spans one tracking period and one sim period plus transport). Frames
-  before the first /hand/bones only measure start-up: that wait is `startup_s` (first tracker
-  frame -> first /hand/bones);
+- tracker -> bones latency, per hand: for each frame on /tracker/{side}/hand_joints received after
+  the first /hand/{side}/bones, the time until the next /hand/{side}/bones message (the delay
+  before the simulated skeleton can reflect that frame; it spans one tracking period and one sim
+  period plus transport). Frames before the first bones only measure start-up: that wait is
+  `startup_s` (first tracker frame -> first bones);
 - sim step time p50/p99 from sim_node's own /diagnostics;
-- tracker frames: in the input bag, published (play_node's log), recorded, and received / accepted /
-  rejected by tracking_node (its last /diagnostics): nothing may be lost on replay (issue #17);
-- max active contacts from /hand/contacts; ball lift from the engine side /world/object_states;
+- tracker frames, per hand: in the input bag, recorded, and received / accepted / rejected by that
+  hand's tracking node (its last /diagnostics), and published (play_node's log, all hands
+  together): nothing may be lost on replay (issue #17);
+- max active contacts from /hand/contacts (per hand by its `hand` field); ball lift from the
+  engine side /world/object_states;
 - the hand measures in use (source default | file | auto, hand and palm sizes [mm], the sizing state
   while `hand_measures: auto` fits) from sim_node's last /diagnostics status that names them;
 - finiteness of every numeric field of every recorded message.
+
+Two hands (docs/INTERFACE.md): `hands` holds the per-hand figures of every side that has tracker
+frames or bones in the recording; the top-level `tracker_frames` are the sums over the hands and
+the top-level latency pools the frames of all hands, so a one-hand run reads as before.
 """
 from __future__ import annotations
 
@@ -26,7 +32,10 @@ from pathlib import Path
 
 import numpy as np
 
+from softhand_sim.topics import LEGACY_TRACKER, SIDES, hand_topic, side_of, tracker_topic
+
 LIFT_OBJECT = "ball"
+TRACKING_NODE = "tracking_node"  # the second hand's runs as tracking_node_left (status names carry it)
 
 
 def _reader(bag_dir):
@@ -72,8 +81,9 @@ def _pointcloud_fields(msg):
 
 
 def frame_latency_ms(tracker_t, bones_t):
-    """(latency [ms] per tracker frame received after the first /hand/bones: time to the next
-    /hand/bones, startup_s: first tracker frame -> first /hand/bones [s]) from receive times [s]."""
+    """(latency [ms] per tracker frame received after the first bones message: time to the next
+    one, startup_s: first tracker frame -> first bones [s]) from receive times [s] of one hand's
+    /tracker/{side}/hand_joints and /hand/{side}/bones."""
     if not len(tracker_t) or not len(bones_t):
         return np.empty(0), float("nan")
     b, tr = np.asarray(bones_t, dtype=np.float64), np.asarray(tracker_t, dtype=np.float64)
@@ -82,14 +92,21 @@ def frame_latency_ms(tracker_t, bones_t):
     return (b[idx[ok]] - tr[ok]) * 1e3, float(b[0] - tr[0])
 
 
-def _input_frames(input_bag):
-    """Messages on /tracker/hand_joints in the input bag (None if it cannot be read)."""
+def input_frames(input_bag, legacy_side="right"):
+    """{side: messages on that side's tracker topic} of the input bag; an old single-hand bag's
+    /tracker/hand_joints counts for `legacy_side` (as play_node plays it). None if unreadable."""
     try:
-        from softhand_sim.ros.bagio import read_topic
-
-        return len(read_topic(input_bag, "/tracker/hand_joints", "geometry_msgs/msg/PoseArray").stamps_ns)
+        reader, _ = _reader(input_bag)
+        with reader:
+            topics = [(c.topic, int(c.msgcount)) for c in reader.connections]
     except Exception:
         return None
+    counts = {}
+    for topic, n in topics:
+        side = legacy_side if topic == LEGACY_TRACKER else side_of(topic)
+        if side is not None and topic in (LEGACY_TRACKER, tracker_topic(side)):
+            counts[side] = counts.get(side, 0) + n
+    return counts
 
 
 def _published_frames(play_log):
@@ -142,7 +159,16 @@ def hand_measures_line(h: dict) -> str:
     return line + (f" (sizing: {', '.join(extra)})" if extra else "")
 
 
-def summarize_run(bag_dir, bag_name="", exit_codes=None, input_bag=None, play_log=None):
+def _tracking_counts(values: dict) -> dict:
+    """received / accepted / rejected of one tracking node /diagnostics status (key -> string)."""
+    return {key.removeprefix("frames_"): int(float(values[key]))
+            for key in ("frames_received", "frames_accepted", "frames_rejected") if key in values}
+
+
+def summarize_run(bag_dir, bag_name="", exit_codes=None, input_bag=None, play_log=None, legacy_side="right"):
+    """The figures of the module docstring for the recording at bag_dir. input_bag: the bag that
+    was played (its frame counts); play_log: play_node's log; legacy_side: the hand an old
+    single-hand input bag was played as."""
     from softhand_sim.ros.msgs import status_node  # ROS message packages only when reading a run
 
     bag_dir = Path(bag_dir)
@@ -152,11 +178,11 @@ def summarize_run(bag_dir, bag_name="", exit_codes=None, input_bag=None, play_lo
         return summary
     reader, store = _reader(bag_dir)
     times = defaultdict(list)
-    tracker_t, bones_t = [], []
     step_p50, step_p99 = [], []
-    tracking_counts = {}
+    tracking_counts = {}  # side -> counts of that hand's tracking node
     hand_measures = {}
     max_contacts = 0
+    max_contacts_hand = defaultdict(int)
     ball_z = []
     all_finite = True
     count = 0
@@ -173,23 +199,21 @@ def summarize_run(bag_dir, bag_name="", exit_codes=None, input_bag=None, play_lo
                     all_finite = False
                 if conn.topic == "/hand/contacts":
                     max_contacts = max(max_contacts, int(cloud.size))
+                    hands = cloud["hand"] if "hand" in cloud.dtype.names else np.zeros(cloud.size, np.uint8)
+                    for code, side in enumerate(SIDES):  # the `hand` field: 0 right, 1 left
+                        max_contacts_hand[side] = max(max_contacts_hand[side], int(np.sum(hands == code)))
             elif not _finite(msg):
                 all_finite = False
-            if conn.topic == "/tracker/hand_joints":
-                tracker_t.append(t)
-            elif conn.topic == "/hand/bones":
-                bones_t.append(t)
-            elif conn.topic == "/world/object_states":
+            if conn.topic == "/world/object_states":
                 names = list(msg.joint_names)
                 if LIFT_OBJECT in names and msg.points:
                     ball_z.append(msg.points[0].transforms[names.index(LIFT_OBJECT)].translation.z)
             elif conn.topic == "/diagnostics":
                 for status in msg.status:
-                    if status_node(status.name) == "tracking_node":  # the last report holds the final counts
+                    if status_node(status.name).startswith(TRACKING_NODE):  # the last report: final counts
                         values = {kv.key: kv.value for kv in status.values}
-                        for key in ("frames_received", "frames_accepted", "frames_rejected"):
-                            if key in values:
-                                tracking_counts[key.removeprefix("frames_")] = int(float(values[key]))
+                        side = values.get("hand", "right")
+                        tracking_counts[side] = {**tracking_counts.get(side, {}), **_tracking_counts(values)}
                     if status_node(status.name) == "sim_node":
                         values = {kv.key: kv.value for kv in status.values}
                         # the last status wins whole: the sizer's keys leave it once the fitted hand runs
@@ -205,13 +229,38 @@ def summarize_run(bag_dir, bag_name="", exit_codes=None, input_bag=None, play_lo
     for topic, ts in sorted(times.items()):
         if len(ts) > 1 and ts[-1] > ts[0]:
             rates[topic] = (len(ts) - 1) / (ts[-1] - ts[0])
-    latency, startup_s = frame_latency_ms(tracker_t, bones_t)
+    in_bag = input_frames(input_bag, legacy_side) if input_bag is not None else None
+    hands, latencies, startups = {}, [], []
+    for side in SIDES:
+        tracker_t, bones_t = times.get(tracker_topic(side), []), times.get(hand_topic(side, "bones"), [])
+        if not tracker_t and not bones_t and side not in tracking_counts and not (in_bag or {}).get(side):
+            continue  # a hand this run did not have
+        latency, startup_s = frame_latency_ms(tracker_t, bones_t)
+        latencies.append(latency)
+        startups.append(startup_s)
+        frames = {"in_bag": (in_bag or {}).get(side) if in_bag is not None else None,
+                  "recorded": len(tracker_t), **tracking_counts.get(side, {})}
+        hands[side] = {
+            "tracker_frames": {k: v for k, v in frames.items() if v is not None},
+            "bones_messages": len(bones_t),
+            "latency_ms_p50": float(np.percentile(latency, 50)) if len(latency) else float("nan"),
+            "latency_ms_p99": float(np.percentile(latency, 99)) if len(latency) else float("nan"),
+            "startup_s": startup_s,
+            "max_contacts": max_contacts_hand.get(side, 0),
+        }
+    latency = np.concatenate(latencies) if latencies else np.empty(0)
+    startup_s = float(np.nanmax(startups)) if startups and not np.all(np.isnan(startups)) else float("nan")
     size = sum(f.stat().st_size for f in bag_dir.rglob("*") if f.is_file())
-    frames = {"in_bag": _input_frames(input_bag) if input_bag is not None else None,
-              "published": _published_frames(play_log) if play_log is not None else None,
-              "recorded": len(times.get("/tracker/hand_joints", [])), **tracking_counts}
+    totals = {}
+    for h in hands.values():
+        for key, value in h["tracker_frames"].items():
+            totals[key] = totals.get(key, 0) + value
+    published = _published_frames(play_log) if play_log is not None else None
+    frames = {"in_bag": totals.get("in_bag") if in_bag is not None else None, "published": published,
+              **{k: v for k, v in totals.items() if k != "in_bag"}}
     summary.update({
         "tracker_frames": {k: v for k, v in frames.items() if v is not None},
+        "hands": hands,
         "bag_messages": count,
         "bag_mb": size / 1e6,
         "messages_per_topic": {k: len(v) for k, v in sorted(times.items())},
