@@ -35,7 +35,7 @@ from pathlib import Path
 
 import numpy as np
 
-from softhand_sim.commands.demo import READY_TOPICS, ProcessSet, console_script, resolve_bag
+from softhand_sim.commands.demo import ProcessSet, console_script, ready_topics, resolve_bag
 from softhand_sim.paths import REPO_ROOT
 from softhand_sim.ros.env import apply_isolated_env, isolated_env
 from softhand_sim.ros.probe import wait_for_topics
@@ -44,8 +44,8 @@ NODES = ("world", "sim", "tracking")  # started first; then record and play
 # (process, diagnostics status name, diagnostics key) of each rate taken from /diagnostics
 DIAG_RATES = {"sim_hz": ("sim_node", "sim_rate_hz"), "tracking_hz": ("tracking_node", "rate_hz"),
               "world_hz": ("world_node", "engine_rate_hz")}
-RECORD_TOPICS = ("/tracker/hand_joints", "/hand/intermediate_bones", "/hand/bones", "/hand/object_states",
-                 "/world/object_states", "/hand/contacts", "/diagnostics")
+RECORD_TOPICS = ("/tracker/right/hand_joints", "/hand/right/intermediate_bones", "/hand/right/bones",
+                 "/hand/object_states", "/world/object_states", "/hand/contacts", "/diagnostics")
 OUR_NODES = ("world_node", "sim_node", "tracking_node", "record_node", "play_node")
 DECAY = 0.95  # a rate whose late median is below this share of its early median decayed
 
@@ -189,7 +189,7 @@ def run(args):
     try:
         for name in NODES:
             procs.start(name, [console_script(f"softhand-{name}")])
-        missing = wait_for_topics(READY_TOPICS, 600.0, procs)
+        missing = wait_for_topics(ready_topics(("right",)), 600.0, procs)
         if missing:
             raise SystemExit(f"error: no publisher on {missing}; see {out / 'logs'}")
         procs.start("record", [console_script("softhand-record"), "-o", str(out / "bag"), "--topics", *RECORD_TOPICS,

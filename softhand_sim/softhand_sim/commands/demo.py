@@ -1,12 +1,18 @@
 """`softhand demo`: the main job. Replays a tracker bag through the whole node set and records it.
 
-Starts world_node, sim_node, tracking_node and record_node as separate processes (loopback-only
-discovery, a ROS domain of their own), waits until they are up, plays the bag with play_node, stops
-everything when the bag ends, then writes runs/<stamp>/:
+Starts world_node, sim_node, one tracking_node per hand and record_node as separate processes
+(loopback-only discovery, a ROS domain of their own), waits until they are up, plays the bag with
+play_node, stops everything when the bag ends, then writes runs/<stamp>/:
     bag/            the recording (rosbag2, mcap storage)
     summary.json    rates per node, sim step p50/p99, latency, contacts, ball lift, hand measures in use
     preview.png     key frames drawn from the recording (CPU renderer), preview.gif
     logs/           each node's output
+
+The hands come from the bag (bag_sides): a side whose tracker topic /tracker/{side}/hand_joints is
+in it, and an old single-hand bag's /tracker/hand_joints as the right hand (`--hand left` plays it
+as the left). sim_node simulates them all in one solve (`hands`); each has its own tracking node
+(one process per hand: the two 250 Hz loops on the two cores), the first side's named
+tracking_node, a second one tracking_node_left.
 """
 from __future__ import annotations
 
@@ -22,10 +28,12 @@ from pathlib import Path
 from softhand_sim.paths import REPO_ROOT, bags_dir
 from softhand_sim.ros.env import apply_isolated_env, isolated_env
 from softhand_sim.ros.probe import wait_for_topics
+from softhand_sim.topics import LEGACY_TRACKER, SIDES, hand_topic, side_of, tracker_topic
 
 DEFAULT_BAG = "grasp_lift"
 # (package, executable) of every process, in start order; the launch file starts the same set
-# (softhand_sim/launch/softhand.launch.py). Console scripts: softhand-<name without _node>.
+# (softhand_sim/launch/softhand.launch.py), tracking_node once per hand. Console scripts:
+# softhand-<name without _node>.
 NODE_SET = (
     ("softhand_world", "world_node"),
     ("softhand_sim", "sim_node"),
@@ -33,11 +41,61 @@ NODE_SET = (
     ("softhand_sim", "record_node"),
     ("softhand_tracking", "play_node"),
 )
-SIM_NODES = NODE_SET[:3]  # started first; record_node and play_node follow once these are up
-READY_TOPICS = ("/world/object_states", "/hand/bones", "/hand/intermediate_bones")
-# play_node starts only once these have subscribed to the tracker topic and been matched: no frame
-# of the bag is lost to a subscriber that joined late (issue #17)
-TRACKER_SUBSCRIBERS = ("tracking_node", "record_node")
+
+
+def tracking_node_name(sides, side):
+    """The tracking node of hand `side` in a run of `sides`: tracking_node for the first hand,
+    tracking_node_<side> for a second one (two nodes cannot share a name)."""
+    return "tracking_node" if side == sides[0] else f"tracking_node_{side}"
+
+
+def ready_topics(sides):
+    """The topics whose publishers must exist before the bag plays: the world's and every hand's
+    simulated and intermediate bones."""
+    return ("/world/object_states", *(hand_topic(s, n) for s in sides for n in ("bones", "intermediate_bones")))
+
+
+def tracker_subscribers(sides):
+    """play_node starts only once these have subscribed to the tracker topics and been matched: no
+    frame of the bag is lost to a subscriber that joined late (issue #17)."""
+    return (*(tracking_node_name(sides, s) for s in sides), "record_node")
+
+
+def params_file_for_hands(params_file, sides, out_dir):
+    """The params file to give every node: `params_file` itself, or with two hands a copy (in
+    out_dir) whose tracking_node section also applies to tracking_node_left (a params file is keyed
+    by node name, and the second hand's node has its own); None stays None."""
+    if params_file is None or len(sides) < 2:
+        return params_file
+    import yaml
+
+    data = yaml.safe_load(Path(params_file).read_text()) or {}
+    for side in sides[1:]:
+        name = tracking_node_name(sides, side)
+        if "tracking_node" in data and name not in data:
+            data[name] = data["tracking_node"]
+    copy = Path(out_dir) / "params.yaml"
+    copy.write_text(yaml.safe_dump(data, sort_keys=False))
+    return copy
+
+
+def bag_sides(bag, legacy_side="right"):
+    """The hands a tracker bag drives, in SIDES order: the sides of its /tracker/{side}/hand_joints
+    topics, and legacy_side for an old bag's /tracker/hand_joints. SystemExit naming the bag's
+    topics when it has no tracker topic."""
+    from rosbags.rosbag2 import Reader
+
+    try:
+        with Reader(Path(bag)) as reader:
+            topics = sorted({c.topic for c in reader.connections})
+    except Exception as exc:  # rosbags raises several kinds
+        raise SystemExit(f"error: cannot read bag {bag}: {type(exc).__name__}: {exc}") from None
+    found = {legacy_side if t == LEGACY_TRACKER else side_of(t) for t in topics
+             if t == LEGACY_TRACKER or t in (tracker_topic(s) for s in SIDES)}
+    if not found:
+        raise SystemExit(f"error: bag {bag} has no tracker topic (/tracker/{{right,left}}/hand_joints or "
+                         f"{LEGACY_TRACKER}); its topics: {', '.join(topics) or 'none'}")
+    return tuple(s for s in SIDES if s in found)
 # after the last frame: its answers travel tracking -> sim -> world -> record, and tracking_node's
 # /diagnostics (1 Hz) reports its final frame counts before the recorder stops
 DRAIN_S = 1.6
@@ -113,36 +171,45 @@ class ProcessSet:
         return "\n".join(path.read_text(errors="replace").splitlines()[-lines:]) if path.exists() else ""
 
 
-def run_demo(bag, out_dir, rate=1.0, params_file=None, preview=True, startup_timeout=600.0, quiet=False, view=False):
+def run_demo(bag, out_dir, rate=1.0, params_file=None, preview=True, startup_timeout=600.0, quiet=False, view=False,
+             legacy_side="right"):
     """Run the node set over `bag`; returns the summary dict (also written to out_dir/summary.json).
 
-    view: also run `softhand view` in the demo's domain (the live topics for the Foxglove app)."""
+    view: also run `softhand view` in the demo's domain (the live topics for the Foxglove app);
+    legacy_side: the hand an old single-hand bag (/tracker/hand_joints) is played as."""
     say = (lambda *a: None) if quiet else (lambda *a: print(*a, flush=True))
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     env = isolated_env()
     apply_isolated_env(env["ROS_DOMAIN_ID"])  # this process watches the same (private) domain
     env.setdefault("NUMBA_NUM_THREADS", "1")  # two cores, five processes: no thread oversubscription
-    say(f"softhand demo: bag {bag.name} -> {out_dir} (ROS_DOMAIN_ID={env['ROS_DOMAIN_ID']}, discovery LOCALHOST)")
+    sides = bag_sides(bag, legacy_side)
+    say(f"softhand demo: bag {bag.name} ({' + '.join(sides)} hand{'s' if len(sides) > 1 else ''}) -> {out_dir} "
+        f"(ROS_DOMAIN_ID={env['ROS_DOMAIN_ID']}, discovery LOCALHOST)")
     procs = ProcessSet(env, out_dir / "logs")
+    params_file = params_file_for_hands(params_file, sides, out_dir)
     ros = ["--ros-args"] + (["--params-file", str(params_file)] if params_file else [])
     t0 = time.monotonic()
     try:
         if view:  # first, so the Foxglove app can connect while the nodes start
             procs.start("view", [console_script("softhand"), "view"])
             say("  live view: in the Foxglove app, Open connection -> Foxglove WebSocket -> ws://localhost:8765")
-        for _, executable in SIM_NODES:
-            name = executable.removesuffix("_node")
-            procs.start(name, [console_script(f"softhand-{name}"), *ros])
+        hands = "[" + ", ".join(sides) + "]"
+        procs.start("world", [console_script("softhand-world"), *ros])
+        procs.start("sim", [console_script("softhand-sim"), *ros, "-p", f"hands:={hands}"])
+        for side in sides:  # one process per hand
+            node = tracking_node_name(sides, side)
+            procs.start(node.replace("_node", ""), [console_script("softhand-tracking"), *ros, "-p", f"hand:={side}",
+                                                    *(["-r", f"__node:={node}"] if node != "tracking_node" else [])])
         say("  starting world, sim and tracking nodes (first start compiles the solver: up to a few minutes)...")
-        missing = wait_for_topics(READY_TOPICS, startup_timeout, procs)
+        missing = wait_for_topics(ready_topics(sides), startup_timeout, procs)
         if missing:
             raise SystemExit(f"error: no publisher on {missing} after {startup_timeout:.0f} s; see {out_dir / 'logs'}")
         procs.start("record", [console_script("softhand-record"), *ros, "-p", f"output:={out_dir / 'bag'}"])
         time.sleep(1.0)  # let the recorder discover the nodes' publishers (the tracker's is waited for below)
         say(f"  nodes up after {time.monotonic() - t0:.1f} s; playing {bag.name} at rate {rate}")
         play = procs.start("play", [console_script("softhand-play"), str(bag), "--rate", str(rate),
-                                    "--wait-for-nodes", *TRACKER_SUBSCRIBERS, *ros])
+                                    "--hand", legacy_side, "--wait-for-nodes", *tracker_subscribers(sides), *ros])
         play.wait()
         if play.returncode != 0:
             raise SystemExit(f"error: play_node failed:\n{procs.tail('play')}")
@@ -153,7 +220,7 @@ def run_demo(bag, out_dir, rate=1.0, params_file=None, preview=True, startup_tim
     from softhand_sim.commands.run_summary import summarize_run
 
     summary = summarize_run(out_dir / "bag", bag_name=bag.name, exit_codes=codes, input_bag=bag,
-                            play_log=out_dir / "logs" / "play.log")
+                            play_log=out_dir / "logs" / "play.log", legacy_side=legacy_side)
     (out_dir / "summary.json").write_text(json.dumps(summary, indent=2))
     if preview:
         from softhand_sim.commands.preview import render_preview
@@ -161,7 +228,7 @@ def run_demo(bag, out_dir, rate=1.0, params_file=None, preview=True, startup_tim
         summary["preview"] = render_preview(out_dir / "bag", out_dir)
         (out_dir / "summary.json").write_text(json.dumps(summary, indent=2))
     say(format_summary(summary, out_dir))
-    silent = [t for t in READY_TOPICS if not summary.get("messages_per_topic", {}).get(t)]
+    silent = [t for t in ready_topics(sides) if not summary.get("messages_per_topic", {}).get(t)]
     if silent:
         raise SystemExit(f"error: nothing was recorded on {silent}; see the node logs in {out_dir / 'logs'}")
     return summary
@@ -175,10 +242,14 @@ def format_summary(s, out_dir):
         f"run {out_dir}",
         "  rates [Hz]: " + ", ".join(f"{k} {v:.1f}" for k, v in r.items()),
         f"  sim step: p50 {s.get('sim_step_ms_p50', float('nan')):.2f} ms, p99 {s.get('sim_step_ms_p99', float('nan')):.2f} ms",
-        f"  tracker -> /hand/bones latency: p50 {s.get('latency_ms_p50', float('nan')):.1f} ms, "
-        f"p99 {s.get('latency_ms_p99', float('nan')):.1f} ms (first /hand/bones "
+        f"  tracker -> bones latency: p50 {s.get('latency_ms_p50', float('nan')):.1f} ms, "
+        f"p99 {s.get('latency_ms_p99', float('nan')):.1f} ms (first bones "
         f"{s.get('startup_s', float('nan')):.2f} s after the first tracker frame)",
         "  tracker frames: " + ", ".join(f"{k} {v}" for k, v in s.get("tracker_frames", {}).items()),
+        *(f"    {side} hand: frames " + ", ".join(f"{k} {v}" for k, v in h["tracker_frames"].items())
+          + f"; latency p50 {h['latency_ms_p50']:.1f} ms, p99 {h['latency_ms_p99']:.1f} ms; "
+            f"max contacts {h['max_contacts']}"
+          for side, h in s.get("hands", {}).items() if len(s.get("hands", {})) > 1),
         hand_measures_line(s.get("hand_measures", {})),
         f"  max active contacts: {s.get('max_contacts', 0)}",
         f"  ball: lifted {100 * s.get('ball_lift_m', 0.0):.1f} cm (lifted >= 8 cm: {s.get('ball_lifted', False)})",
@@ -200,6 +271,9 @@ def main(argv=None):
                         help=f"tracker bag directory or a sample name in bags/ (default {DEFAULT_BAG})")
     parser.add_argument("--out", default=None, help="run directory (default runs/<stamp>)")
     parser.add_argument("--rate", type=float, default=1.0, help="playback speed factor (default 1)")
+    parser.add_argument("--hand", choices=SIDES, default="right",
+                        help="the hand an old single-hand bag (/tracker/hand_joints) drives (default right); "
+                             "two-hand bags name their sides themselves")
     parser.add_argument("--params-file", default=None, help="ROS 2 params file for the nodes")
     parser.add_argument("--no-preview", action="store_true", help="skip rendering the preview")
     parser.add_argument("--view", action="store_true",
@@ -209,7 +283,8 @@ def main(argv=None):
         parser.error(f"--rate must be > 0, got {args.rate}")
     bag = resolve_bag(args.bag)
     out = Path(args.out) if args.out else REPO_ROOT / "runs" / datetime.now().strftime("%Y%m%d-%H%M%S")
-    run_demo(bag, out, rate=args.rate, params_file=args.params_file, preview=not args.no_preview, view=args.view)
+    run_demo(bag, out, rate=args.rate, params_file=args.params_file, preview=not args.no_preview, view=args.view,
+             legacy_side=args.hand)
     return 0
 
 
