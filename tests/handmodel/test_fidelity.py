@@ -71,7 +71,7 @@ def _pose_array(stamp_ns, poses):
 
 
 def test_fidelity_command_on_a_recording(tmp_path):
-    """`softhand fidelity BAG --measures FILE` on a recording whose /hand/bones are the kinematic
+    """`softhand fidelity BAG --measures FILE` on a recording whose /hand/right/bones are the kinematic
     hand's own bones (at the measures in the file), 2 mm off in x: palm, knuckle and tip errors
     2 mm, directions exact."""
     import json
@@ -88,8 +88,8 @@ def test_fidelity_command_on_a_recording(tmp_path):
     msgtype = "geometry_msgs/msg/PoseArray"
     records = []
     for k, s in enumerate(1_700_000_000_000_000_000 + np.round(t * 1e9).astype(np.int64)):
-        records.append(("/tracker/hand_joints", msgtype, int(s), serialize(_pose_array(int(s), joints[k]), msgtype)))
-        records.append(("/hand/bones", msgtype, int(s) + 1000, serialize(_pose_array(int(s) + 1000, bones[k]), msgtype)))
+        records.append(("/tracker/right/hand_joints", msgtype, int(s), serialize(_pose_array(int(s), joints[k]), msgtype)))
+        records.append(("/hand/right/bones", msgtype, int(s) + 1000, serialize(_pose_array(int(s) + 1000, bones[k]), msgtype)))
     write_bag(tmp_path / "rec", records)
     write_measures_file(tmp_path / "m.yaml", m)
     proc = subprocess.run([str(Path(sys.executable).parent / "softhand"), "fidelity", str(tmp_path / "rec"),

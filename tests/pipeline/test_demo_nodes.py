@@ -49,6 +49,7 @@ def read_topic(bag_dir, topic):
     store = get_typestore(Stores.ROS2_JAZZY)
     with Reader(bag_dir) as reader:
         conns = [c for c in reader.connections if c.topic == topic]
+        assert conns, f"no {topic} in {bag_dir}"  # (rosbags would read every topic when given none)
         return [(t * 1e-9, store.deserialize_cdr(raw, c.msgtype)) for c, t, raw in reader.messages(connections=conns)]
 
 
@@ -63,7 +64,8 @@ def object_z(bag_dir, name, topic="/world/object_states"):
 
 # viewer artefacts of ~1 MB a message (every skin triangle as points): decoding all of them took
 # most of this check's 8 s; their first and last messages are decoded, every one is counted
-HEAVY_TOPICS = {"/hand/skin_marker", "/hand/skin_vertices"}
+HEAVY_TOPICS = {"/hand/right/skin_marker", "/hand/right/skin_vertices", "/hand/left/skin_marker",
+                "/hand/left/skin_vertices"}
 
 
 def check_recording_opens_everywhere(bag_dir):
@@ -99,14 +101,18 @@ def check_recording_opens_everywhere(bag_dir):
 
 @pytest.mark.parametrize("bag", ["fast_dropout", "squeeze", "press_table", "pinch_lift", "grasp_lift"])
 def test_every_bag_rates_finite_and_readable(tmp_path, bag):
-    """/hand/bones and /hand/intermediate_bones come at their rates, all values finite, bag readable."""
+    """/hand/right/bones and /hand/right/intermediate_bones (the sample bags are old single-hand bags:
+    the right hand) come at their rates, all values finite, bag readable, nothing on the left hand's
+    topics."""
     params = SKIN_PARAMS if bag == "press_table" else None
     out, summary, _ = run_demo(tmp_path, bag, params)
     rates = summary["rates_hz"]
     # the 250 Hz loop skips the ticks it cannot catch up when the two cores are saturated by five
     # processes and whatever else runs on the machine (measured: 230 Hz with other work running)
-    assert 225 <= rates["/hand/intermediate_bones"] <= 260, rates
-    assert rates["/hand/bones"] >= 0.8 * 60.0 * 0.5, rates  # sim_rate 60 Hz; at least half on 2 shared cores
+    assert 225 <= rates["/hand/right/intermediate_bones"] <= 260, rates
+    assert rates["/hand/right/bones"] >= 0.8 * 60.0 * 0.5, rates  # sim_rate 60 Hz; at least half on 2 shared cores
+    assert not [t for t, n in summary["messages_per_topic"].items() if "/left/" in t and n], summary
+    assert list(summary["hands"]) == ["right"], summary["hands"]
     assert summary["all_finite"], summary
     decoded = check_recording_opens_everywhere(out / "bag")
     assert decoded == summary["bag_messages"]
@@ -147,11 +153,12 @@ def check_press(bag_dir):
     table = load_scene().object("table")
     top = table.pose[2] + table.dims["size"][2] / 2
     deepest = math.inf
-    for _, msg in read_topic(bag_dir, "/hand/skin_vertices"):
+    for _, msg in read_topic(bag_dir, "/hand/right/skin_vertices"):
         xyz = xyz_cloud_to_numpy(msg)
         over = (np.abs(xyz[:, 0] - table.pose[0]) < 0.39) & (np.abs(xyz[:, 1] - table.pose[1]) < 0.39)
         if over.any():
             deepest = min(deepest, float(xyz[over, 2].min() - top))
+    assert math.isfinite(deepest), "no skin vertex over the table"
     assert deepest > -0.005, f"skin went {1000 * -deepest:.1f} mm into the table"
     fmax = 0.0
     for _, msg in read_topic(bag_dir, "/hand/contacts"):

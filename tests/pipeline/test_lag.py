@@ -4,10 +4,11 @@ later at 250 Hz and a 'sim' layer 30 ms later at 60 Hz, written as a recording l
 import numpy as np
 import pytest
 
-from softhand_sim.commands.lag import LAYERS, TRACKER, format_report, lag_report
+from softhand_sim.commands.lag import format_report, lag_report, layer_topics
 from softhand_sim.handmodel.kinematics import forward_kinematics
 from softhand_sim.ros.bagio import TYPESTORE, serialize, write_bag
 from softhand_sim.scenarios import tracker_bags
+from softhand_sim.topics import tracker_topic
 from softhand_tracking.adapter import TrackerAdapter
 
 T0 = 1_800_000_000.0   # [s] the run's clock
@@ -26,9 +27,10 @@ def _msg(poses, t):
 
 
 def recording(path, delays=(0.008, 0.030), palm_offset=(0.0, 0.0, 0.0), tracker_clock_offset=0.0,
-              scenario="grasp_short", duration=2.0):
+              scenario="grasp_short", duration=2.0, side="right"):
     """Tracker frames at 100 Hz (stamped on the run's clock + tracker_clock_offset, received 2 ms
-    later), the two layers as the delayed motion (palm shifted by palm_offset in the sim layer)."""
+    later), the two layers as the delayed motion (palm shifted by palm_offset in the sim layer),
+    on hand `side`'s topics."""
     motion = tracker_bags.SCENARIOS[scenario].motion()
     adapter = TrackerAdapter()
     records = []
@@ -37,8 +39,8 @@ def recording(path, delays=(0.008, 0.030), palm_offset=(0.0, 0.0, 0.0), tracker_
         return forward_kinematics(*motion(float(np.clip(t, 0.0, motion.duration))))[0]
 
     for t in np.arange(0.0, duration, 0.01):
-        records.append((TRACKER, POSE_ARRAY, int((T0 + t + 0.002) * 1e9), _msg(joints(t), T0 + t + tracker_clock_offset)))
-    for (name, topic), delay, rate in zip(LAYERS.items(), delays, (250.0, 60.0)):
+        records.append((tracker_topic(side), POSE_ARRAY, int((T0 + t + 0.002) * 1e9), _msg(joints(t), T0 + t + tracker_clock_offset)))
+    for (name, topic), delay, rate in zip(layer_topics(side).items(), delays, (250.0, 60.0)):
         for t in np.arange(0.1, duration, 1.0 / rate):
             bones = adapter.convert(joints(t - delay)[:, :3])
             if name == "sim":
@@ -78,3 +80,13 @@ def test_tracker_stamps_on_another_clock_fall_back_to_receive_times(tmp_path):
     r = lag_report(recording(tmp_path / "rec", tracker_clock_offset=-3.15e7))
     assert r["time_base"] == "receive"
     assert r["sim"]["lag_phalanx_ms"] == pytest.approx(30.0 - 2.0 + 3.0, abs=1.0)
+
+
+def test_the_other_hand_is_left_alone(tmp_path):
+    """A recording on the left hand's topics: `--hand left` finds its lags; the right hand (the
+    default) is not in it, and the error names the topic looked for."""
+    rec = recording(tmp_path / "rec", side="left")
+    r = lag_report(rec, hand="left")
+    assert r["sim"]["lag_phalanx_ms"] == pytest.approx(30.0, abs=1.0)
+    with pytest.raises(ValueError, match="/tracker/right/hand_joints"):
+        lag_report(rec)

@@ -1,6 +1,6 @@
 """`softhand calibrate BAG`: the user's hand measures from a tracker recording (no ROS).
 
-Reads /tracker/hand_joints of BAG (a rosbag2 directory, or a name in bags/), fits the measures
+Reads /tracker/{hand}/hand_joints (or an old bag's /tracker/hand_joints) of BAG (a rosbag2 directory, or a name in bags/), fits the measures
 on the first --seconds of valid frames (softhand_sim.handmodel.fit: median over the frames, outlier
 frames rejected), prints them and writes a measures file that `softhand model info --measures`
 and the nodes' `hand_measures` parameter read.
@@ -18,13 +18,15 @@ def main(argv=None):
     parser.add_argument("bag", help="tracker bag: a rosbag2 directory or the name of one in bags/")
     parser.add_argument("--out", default="measures.yaml", help="measures file to write (default measures.yaml)")
     parser.add_argument("--seconds", type=float, default=1.0, help="calibration window [s] (default 1)")
-    parser.add_argument("--hand", choices=("right", "left"), default="right")
+    parser.add_argument("--hand", choices=("right", "left"), default="right",
+                        help="the hand to calibrate: its /tracker/{hand}/hand_joints in a two-hand bag, or the one "
+                             "hand of an old bag's /tracker/hand_joints (default right)")
     parser.add_argument("--json", action="store_true", help="print the figures as one JSON object")
     args = parser.parse_args(argv)
     from softhand_sim.commands.offline import read_frames
     from softhand_sim.ros.bagio import BagError
     try:
-        times, joints = read_frames(args.bag)
+        times, joints = read_frames(args.bag, side=args.hand)
         result = fit_measures(times, joints, seconds=args.seconds, hand=args.hand)
     except (BagError, ValueError) as exc:
         print(f"error: {exc}", file=sys.stderr)

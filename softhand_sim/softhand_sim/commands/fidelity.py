@@ -1,13 +1,15 @@
 """`softhand fidelity BAG`: how closely the simulated hand follows the tracked one.
 
 Two sources:
-* a recording (`softhand demo` run bag, or any bag with /tracker/hand_joints and /hand/bones):
-  the tracked frames and the simulated bones it holds, times from their header stamps;
+* a recording (`softhand demo` run bag, or any bag with /tracker/{side}/hand_joints and
+  /hand/{side}/bones): the tracked frames and the simulated bones of each hand it holds (--hand:
+  one of them), times from their header stamps;
 * --offline: a tracker bag run through the offline pipeline (softhand_sim.commands.offline,
   deterministic, no ROS) with the default hand or the hand at --measures (a measures file, or
   `auto`: calibrated on the bag's first second, as `softhand calibrate` does).
 Prints the figures of softhand_sim.handmodel.fidelity (palm, knuckle, fingertip position error,
-phalanx direction error, thumb-index tip gap) as JSON.
+phalanx direction error, thumb-index tip gap) as JSON: one object, with the figures of each hand
+under "hands" when a recording holds two.
 """
 import argparse
 import json
@@ -18,17 +20,19 @@ import numpy as np
 
 from softhand_sim.handmodel.fidelity import fidelity
 from softhand_sim.handmodel.measures import HandMeasures, read_measures_file
-
-TRACKER = ("/tracker/hand_joints", "geometry_msgs/msg/PoseArray")
-BONES = ("/hand/bones", "geometry_msgs/msg/PoseArray")
+from softhand_sim.topics import POSE_ARRAY, SIDES, hand_topic, tracker_topic
 
 
-def _poses(path, topic, msgtype):
+def _poses(path, topic, msgtype=POSE_ARRAY):
     """(header times [s], poses (n, m, 7)) of a PoseArray topic."""
-    from softhand_sim.ros.bagio import deserialize, read_topic
-    data = read_topic(path, topic, msgtype)
+    from softhand_sim.ros.bagio import read_topic
+    return _decode(read_topic(path, topic, msgtype).payloads)
+
+
+def _decode(payloads, msgtype=POSE_ARRAY):
+    from softhand_sim.ros.bagio import deserialize
     t, poses = [], []
-    for raw in data.payloads:
+    for raw in payloads:
         msg = deserialize(raw, msgtype)
         t.append(msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec)
         poses.append([(p.position.x, p.position.y, p.position.z, p.orientation.x, p.orientation.y,
@@ -48,11 +52,20 @@ def measures_for(spec, bag=None, seconds=1.0):
     return read_measures_file(spec)
 
 
-def recorded_fidelity(bag, measures):
+def recorded_sides(bag):
+    """The hands a recording holds both tracked frames and simulated bones of, in SIDES order."""
+    from softhand_sim.ros.bagio import read_recording
+    topics = read_recording(bag).topics
+    return [s for s in SIDES if tracker_topic(s) in topics and hand_topic(s, "bones") in topics]
+
+
+def recorded_fidelity(bag, measures, side="right"):
+    """The figures of hand `side` in a recording (/tracker/{side}/hand_joints vs /hand/{side}/bones)."""
     from softhand_sim.handmodel.skeleton import build_skeleton
-    tt, tj = _poses(bag, *TRACKER)
+    from softhand_sim.ros.bagio import read_tracker
+    tt, tj = _decode(read_tracker(bag, side).payloads)
     order = np.argsort(tt, kind="stable")
-    st, sb = _poses(bag, *BONES)
+    st, sb = _poses(bag, hand_topic(side, "bones"))
     return fidelity(tt[order], tj[order], st, sb, build_skeleton(measures)["bone_length"])
 
 
@@ -77,8 +90,10 @@ def offline_fidelity(bag, measures):
 
 def main(argv=None):
     parser = argparse.ArgumentParser(prog="softhand fidelity", description=__doc__.splitlines()[0])
-    parser.add_argument("bag", help="a recording with /tracker/hand_joints and /hand/bones; with --offline a tracker bag "
-                                    "(directory or name in bags/)")
+    parser.add_argument("bag", help="a recording with /tracker/{side}/hand_joints and /hand/{side}/bones; with "
+                                    "--offline a tracker bag (directory or name in bags/)")
+    parser.add_argument("--hand", choices=SIDES, default=None,
+                        help="the hand to score (default: every hand the recording holds; right with --offline)")
     parser.add_argument("--offline", action="store_true", help="run the offline pipeline over the tracker bag first")
     parser.add_argument("--measures", default=None, help="the simulated hand: a measures file, 'auto' (calibrate on "
                                                          "the bag's first second) or 'default' (default)")
@@ -89,8 +104,14 @@ def main(argv=None):
         if args.offline:
             figures, build_s = offline_fidelity(args.bag, m)
             figures["hand_build_or_load_s"] = round(build_s, 2)
+            figures = dict(hand="right", **figures)
         else:
-            figures = recorded_fidelity(args.bag, m)
+            sides = [args.hand] if args.hand else recorded_sides(args.bag)
+            if not sides:
+                raise ValueError(f"{args.bag} holds no hand with both /tracker/{{side}}/hand_joints and "
+                                 "/hand/{side}/bones")
+            per_hand = {side: recorded_fidelity(args.bag, m, side) for side in sides}
+            figures = dict(hand=sides[0], **per_hand[sides[0]]) if len(sides) == 1 else {"hands": per_hand}
     except (BagError, ValueError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 1

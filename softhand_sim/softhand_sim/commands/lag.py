@@ -3,8 +3,9 @@
     softhand lag runs/<stamp>            # a demo run directory (its bag/) or any recording
     softhand lag RECORDING --json out.json
 
-Reads a recording with /tracker/hand_joints, /hand/intermediate_bones and /hand/bones (rosbags, no
-ROS needed) and reports, for the intermediate layer and for the simulated skeleton each:
+Reads a recording with one hand's /tracker/{side}/hand_joints, /hand/{side}/intermediate_bones and
+/hand/{side}/bones (--hand, default right; rosbags, no ROS needed) and reports, for the
+intermediate layer and for the simulated skeleton each:
 
 * lag [ms]: the time shift tau that best aligns the layer with the tracked hand, i.e. minimises the
   mean squared difference between the layer at time t and the tracked hand at t - tau (tracked
@@ -14,8 +15,8 @@ ROS needed) and reports, for the intermediate layer and for the simulated skelet
   refined by a parabola through the best three;
 * errors at zero shift: phalanx direction angle, palm position and palm orientation (median /
   p95 / max), and the phalanx angle p95 at the best shift (what is left once the lag is removed);
-* tracker frames: recorded, and tracking_node's received / accepted / rejected (its last
-  /diagnostics).
+* tracker frames: recorded, and that hand's tracking node's received / accepted / rejected (its
+  last /diagnostics).
 
 Time base: header stamps (docs/INTERFACE.md "Stamps and clocks": tracker frames carry their capture
 time on the run's clock, outputs the time of their state). A recording whose tracker stamps are
@@ -36,8 +37,9 @@ from pathlib import Path
 
 import numpy as np
 
-TRACKER = "/tracker/hand_joints"
-LAYERS = {"intermediate": "/hand/intermediate_bones", "sim": "/hand/bones"}
+from softhand_sim.topics import hand_topic, tracker_topic
+
+LAYER_TOPICS = {"intermediate": "intermediate_bones", "sim": "bones"}  # layer -> per-side topic name
 SHIFT_RANGE_MS = (-60.0, 250.0)  # [ms] lags searched (negative: the layer leads)
 MAX_GAP_S = 0.05                 # [s] tracked frames further apart are not interpolated across
 CLOCK_MISMATCH_S = 1.0           # [s] tracker vs output stamps further apart: not one clock
@@ -163,9 +165,15 @@ def _pose_rows(msg) -> np.ndarray:
                       p.orientation.z, p.orientation.w) for p in msg.poses])
 
 
-def read_run(path):
-    """{topic: (header stamps [s], receive times [s], poses (n, k, 7))} of the tracker and layer
-    topics, and tracking_node's last frame counts, from a recording (or a run dir with bag/)."""
+def layer_topics(hand: str) -> dict:
+    """{layer: topic} of hand `hand`: its intermediate and simulated bones."""
+    return {name: hand_topic(hand, topic) for name, topic in LAYER_TOPICS.items()}
+
+
+def read_run(path, hand: str = "right"):
+    """{topic: (header stamps [s], receive times [s], poses (n, k, 7))} of hand `hand`'s tracker and
+    layer topics, and its tracking node's last frame counts, from a recording (or a run dir with
+    bag/)."""
     from rosbags.rosbag2 import Reader
     from rosbags.typesys import Stores, get_typestore
 
@@ -175,16 +183,17 @@ def read_run(path):
     if (path / "bag" / "metadata.yaml").is_file():
         path = path / "bag"
     store = get_typestore(Stores.ROS2_JAZZY)
-    rows = {t: ([], [], []) for t in (TRACKER, *LAYERS.values())}
+    rows = {t: ([], [], []) for t in (tracker_topic(hand), *layer_topics(hand).values())}
     counts = {}
     with Reader(path) as reader:
         conns = [c for c in reader.connections if c.topic in rows or c.topic == "/diagnostics"]
-        for conn, t_ns, raw in reader.messages(connections=conns):
+        # (rosbags reads every connection when given none)
+        for conn, t_ns, raw in reader.messages(connections=conns) if conns else ():
             msg = store.deserialize_cdr(raw, conn.msgtype)
             if conn.topic == "/diagnostics":
                 for status in msg.status:
-                    if status_node(status.name) == "tracking_node":
-                        values = {kv.key: kv.value for kv in status.values}
+                    values = {kv.key: kv.value for kv in status.values}
+                    if status_node(status.name).startswith("tracking_node") and values.get("hand", "right") == hand:
                         for key in ("frames_received", "frames_accepted", "frames_rejected"):
                             if key in values:
                                 counts[key.removeprefix("frames_")] = int(float(values[key]))
@@ -210,13 +219,14 @@ def lag_report(path, hand: str = "right", time_base: str = "auto") -> dict:
 
     time_base: "stamp" (header stamps), "receive" (recording times) or "auto" (stamps when the
     tracker's and the outputs' are on one clock, else receive times)."""
-    data, counts = read_run(path)
-    if TRACKER not in data:
-        raise ValueError(f"{path}: no {TRACKER} in the recording")
-    tr_stamp, tr_recv, joints = data[TRACKER]
+    data, counts = read_run(path, hand)
+    tracker, layers = tracker_topic(hand), layer_topics(hand)
+    if tracker not in data:
+        raise ValueError(f"{path}: no {tracker} in the recording")
+    tr_stamp, tr_recv, joints = data[tracker]
     report = {"frames": {"recorded": int(len(tr_stamp)), **counts}}
     if time_base == "auto":
-        outs = [data[t][0] for t in LAYERS.values() if t in data]
+        outs = [data[t][0] for t in layers.values() if t in data]
         offset = np.median(np.concatenate(outs)) - np.median(tr_stamp) if outs else 0.0
         time_base = "stamp" if abs(offset) < CLOCK_MISMATCH_S else "receive"
     col = 0 if time_base == "stamp" else 1
@@ -224,7 +234,7 @@ def lag_report(path, hand: str = "right", time_base: str = "auto") -> dict:
     ref = tracked_bones(joints, (tr_stamp, tr_recv)[col], hand)
     ref = _sorted(ref.t, ref.poses)
     report["frames"]["valid"] = int(ref.t.size)
-    for name, topic in LAYERS.items():
+    for name, topic in layers.items():
         if topic in data:
             s = data[topic]
             report[name] = layer_lag(ref, _sorted(s[col], s[2]))
@@ -235,7 +245,7 @@ def lag_report(path, hand: str = "right", time_base: str = "auto") -> dict:
 def format_report(r: dict, title: str = "") -> str:
     lines = [f"lag report {title} (time base: {r['time_base']})".replace("  ", " "),
              "  tracker frames: " + ", ".join(f"{k} {v}" for k, v in r["frames"].items())]
-    for name in LAYERS:
+    for name in LAYER_TOPICS:
         if name not in r:
             continue
         x = r[name]

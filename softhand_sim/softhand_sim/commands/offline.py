@@ -45,23 +45,23 @@ from softhand_tracking.adapter import AdapterConfig, TrackerAdapter
 from softhand_tracking.loop import LoopConfig, TrackingLoop
 from softhand_world.world import World, WorldConfig
 
-TOPIC = "/tracker/hand_joints"
 MSGTYPE = "geometry_msgs/msg/PoseArray"
 _FRAME, _LOOP, _WORLD, _SIM_OUT, _SIM = range(5)  # tie-break order of simultaneous events
 
 
-def read_frames(bag=None, synth=None):
-    """(times [s] from the first frame, joints (n, 26, 7)) of a bag (name in bags/ or directory)
-    or, with synth=<scenario name>, of tracker_bags.sample directly (no file)."""
+def read_frames(bag=None, synth=None, side="right"):
+    """(times [s] from the first frame, joints (n, 26, 7)) of hand `side` in a bag (name in bags/ or
+    directory: its /tracker/{side}/hand_joints, or an old bag's /tracker/hand_joints) or, with
+    synth=<scenario name>, of tracker_bags.sample directly (no file)."""
     if synth is not None:
         from softhand_sim.scenarios.tracker_bags import sample
         stamps, joints, _ = sample(synth)
     else:
-        from softhand_sim.ros.bagio import deserialize, read_topic
+        from softhand_sim.ros.bagio import deserialize, read_tracker
         path = Path(bag)
         if not path.exists():
             path = bags_dir() / str(bag)
-        data = read_topic(path, TOPIC, MSGTYPE)
+        data = read_tracker(path, side)
         joints = []
         for raw in data.payloads:
             msg = deserialize(raw, MSGTYPE)

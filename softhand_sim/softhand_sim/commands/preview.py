@@ -1,7 +1,7 @@
 """Preview of a recorded run: key frames drawn from the recording with the CPU renderer.
 
-Reads /hand/skin_marker (the skin as a triangle list) and /world/object_states (engine-side
-objects) from the rosbag2 directory, the static objects from the scene file, and draws them with
+Reads /hand/{side}/skin_marker of every hand (the skin as a triangle list; both hands drawn in one
+picture) and /world/object_states (engine-side objects) from the rosbag2 directory, the static objects from the scene file, and draws them with
 handmodel.render (matplotlib, painter's algorithm; no ROS, no GPU). Writes preview.png (a strip
 of key frames) and preview.gif (the run, downsampled), both from one fixed camera with the table
 and the ground in view.
@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from softhand_sim.scene import load_scene
+from softhand_sim.topics import SIDES, hand_topic, side_of
 
 # One fixed camera for every panel of preview.png and every frame of preview.gif: an elevated
 # three-quarter view from the front (-y) of the table, framed once for the whole run, so the hand
@@ -30,21 +31,28 @@ GIF_WIDTH_IN = 3.6    # [in] width of preview.gif (80 dpi)
 
 
 def read_frames(bag_dir, max_frames=60):
-    """[(t, vertices (3F,3), triangles (F,3)), ...] and {name: [(t, pose (7,))]} from the recording."""
+    """[(t, triangle corners (3F, 3)), ...] and {name: [(t, pose (7,))]} from the recording.
+
+    With two hands a frame holds both skins: it is taken at each skin marker of the last hand in
+    SIDES order (the sim publishes both hands' markers in one tick), with the other hand's latest."""
     from rosbags.rosbag2 import Reader
     from rosbags.typesys import Stores, get_typestore
 
     store = get_typestore(Stores.ROS2_JAZZY)
-    skins, objects = [], {}
+    skins, objects, latest = [], {}, {}
+    marker_topics = {hand_topic(side, "skin_marker") for side in SIDES}
     with Reader(Path(bag_dir)) as reader:
-        conns = [c for c in reader.connections if c.topic in ("/hand/skin_marker", "/world/object_states")]
-        for conn, t_ns, raw in reader.messages(connections=conns):
+        conns = [c for c in reader.connections if c.topic in marker_topics or c.topic == "/world/object_states"]
+        sides = [s for s in SIDES if any(c.topic == hand_topic(s, "skin_marker") for c in conns)]
+        for conn, t_ns, raw in reader.messages(connections=conns) if conns else ():
             msg = store.deserialize_cdr(raw, conn.msgtype)
             t = t_ns * 1e-9
-            if conn.topic == "/hand/skin_marker":
+            if conn.topic in marker_topics:
                 pts = np.array([[p.x, p.y, p.z] for p in msg.points], dtype=np.float64)
                 if pts.size and pts.shape[0] % 3 == 0:
-                    skins.append((t, pts))
+                    latest[side_of(conn.topic)] = pts
+                    if side_of(conn.topic) == sides[-1]:
+                        skins.append((t, np.vstack(list(latest.values()))))
             elif msg.points:
                 for name, tf in zip(msg.joint_names, msg.points[0].transforms):
                     pose = np.array([tf.translation.x, tf.translation.y, tf.translation.z,

@@ -293,6 +293,25 @@ def read_topic(path, topic: str, msgtype: str, allow_torn: bool = False) -> Topi
     return TopicData(p, topic, msgtype, _storage_of(p), [stamps[i] for i in order], [payloads[i] for i in order])
 
 
+def read_tracker(path, side: str = "right", allow_torn: bool = False) -> TopicData:
+    """The tracked frames of hand `side` in a tracker bag: its /tracker/{side}/hand_joints, or,
+    in an old single-hand bag, /tracker/hand_joints (the bag's one hand, whichever side the caller
+    takes it for). BagError as read_topic, naming the side's topic when neither is there."""
+    from softhand_sim.topics import LEGACY_TRACKER, POSE_ARRAY, tracker_topic
+
+    try:
+        return read_topic(path, tracker_topic(side), POSE_ARRAY, allow_torn)
+    except BagError as exc:
+        if "has no topic" not in str(exc):
+            raise
+        try:
+            return read_topic(path, LEGACY_TRACKER, POSE_ARRAY, allow_torn)
+        except BagError as legacy:
+            if "has no topic" not in str(legacy):
+                raise
+            raise exc from None
+
+
 def deserialize(raw: bytes, msgtype: str):
     """A rosbags message object (attribute access like rclpy's) from CDR bytes."""
     return TYPESTORE.deserialize_cdr(raw, msgtype)
