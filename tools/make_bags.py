@@ -3,20 +3,30 @@
 
     .venv/bin/python tools/make_bags.py [--out bags] [--only grasp_short ...]
 
-Each bag is a rosbag2 directory with mcap storage, one topic /tracker/hand_joints of
-geometry_msgs/msg/PoseArray (26 OpenXR joints, header.frame_id "world", header.stamp = capture
-time = bag time). The motions are described in softhand_sim/scenarios/tracker_bags.py.
+Each bag is a rosbag2 directory with mcap storage, of geometry_msgs/msg/PoseArray (26 OpenXR
+joints, header.frame_id "world", header.stamp = capture time = bag time). The one-hand bags have one
+topic, /tracker/hand_joints (the single-hand name of older bags, played as the right hand); their
+motions are described in softhand_sim/scenarios/tracker_bags.py. The two-hand bags (handover,
+two_hand_lift: softhand_sim/scenarios/bimanual.py) have /tracker/right/hand_joints and
+/tracker/left/hand_joints, and a params.yaml beside them with the node parameters their scene needs
+(`softhand demo` passes it to the nodes). The handover's left hand is aimed at the ball where an
+offline run of the script has it hang (about a minute).
 """
 import argparse
 import shutil
 import sys
 from pathlib import Path
 
+import yaml
+
+from softhand_sim.scenarios.bimanual import TWO_HAND_BAGS, tracker_frames
 from softhand_sim.scenarios.tracker_bags import SCENARIOS, sample
 from softhand_sim.ros.bagio import TYPESTORE, serialize, write_bag
+from softhand_sim.topics import LEGACY_TRACKER, tracker_topic
 
-TOPIC = "/tracker/hand_joints"
+TOPIC = LEGACY_TRACKER
 MSGTYPE = "geometry_msgs/msg/PoseArray"
+PARAMS_FILE = "params.yaml"  # beside a bag: the node parameters its scene needs (softhand demo reads it)
 
 
 def pose_array(stamp_ns, joints):
@@ -41,15 +51,33 @@ def make_bag(name, out_dir: Path) -> Path:
     return write_bag(path, records, storage="mcap")
 
 
+def make_two_hand_bag(name, out_dir: Path) -> Path:
+    """A two-hand bag: both sides' tracker topics, interleaved by capture time, and params.yaml."""
+    path = out_dir / name
+    if path.exists():
+        shutil.rmtree(path)
+    frames = tracker_frames(name)
+    records = sorted(((tracker_topic(side), MSGTYPE, int(s), j) for side, (stamps, joints) in frames.items()
+                      for s, j in zip(stamps, joints)), key=lambda r: (r[2], r[0]))
+    write_bag(path, ((topic, t, s, serialize(pose_array(s, j), MSGTYPE)) for topic, t, s, j in records),
+              storage="mcap")
+    params = {node: {"ros__parameters": values} for node, values in TWO_HAND_BAGS[name].items()}
+    if params:
+        (path / PARAMS_FILE).write_text(f"# parameters the scene of bag {name} needs (tools/make_bags.py)\n"
+                                        + yaml.safe_dump(params, sort_keys=False))
+    return path
+
+
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", default=str(Path(__file__).resolve().parents[1] / "bags"))
-    parser.add_argument("--only", nargs="*", choices=sorted(SCENARIOS), help="bags to write (default: all)")
+    names = [*SCENARIOS, *TWO_HAND_BAGS]
+    parser.add_argument("--only", nargs="*", choices=sorted(names), help="bags to write (default: all)")
     args = parser.parse_args(argv)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    for name in args.only or SCENARIOS:
-        path = make_bag(name, out)
+    for name in args.only or names:
+        path = make_two_hand_bag(name, out) if name in TWO_HAND_BAGS else make_bag(name, out)
         size = sum(f.stat().st_size for f in path.iterdir())
         print(f"{path}: {size / 1e6:.2f} MB")
     return 0

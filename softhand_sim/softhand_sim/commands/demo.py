@@ -8,6 +8,9 @@ play_node, stops everything when the bag ends, then writes runs/<stamp>/:
     preview.png     key frames drawn from the recording (CPU renderer), preview.gif
     logs/           each node's output
 
+A bag directory may hold a params.yaml (ROS params file) with the node parameters its scene needs:
+the demo passes it to the nodes before --params-file (the two-hand lift's stiffer object coupling).
+
 The hands come from the bag (bag_sides): a side whose tracker topic /tracker/{side}/hand_joints is
 in it, and an old single-hand bag's /tracker/hand_joints as the right hand (`--hand left` plays it
 as the left). sim_node simulates them all in one solve (`hands`); each has its own tracking node
@@ -31,6 +34,7 @@ from softhand_sim.ros.probe import wait_for_topics
 from softhand_sim.topics import LEGACY_TRACKER, SIDES, hand_topic, side_of, tracker_topic
 
 DEFAULT_BAG = "grasp_lift"
+BAG_PARAMS = "params.yaml"  # beside a bag: node parameters its scene needs (tools/make_bags.py)
 # (package, executable) of every process, in start order; the launch file starts the same set
 # (softhand_sim/launch/softhand.launch.py), tracking_node once per hand. Console scripts:
 # softhand-<name without _node>.
@@ -188,7 +192,12 @@ def run_demo(bag, out_dir, rate=1.0, params_file=None, preview=True, startup_tim
         f"(ROS_DOMAIN_ID={env['ROS_DOMAIN_ID']}, discovery LOCALHOST)")
     procs = ProcessSet(env, out_dir / "logs")
     params_file = params_file_for_hands(params_file, sides, out_dir)
-    ros = ["--ros-args"] + (["--params-file", str(params_file)] if params_file else [])
+    # a bag may carry the node parameters its scene needs (tools/make_bags.py: params.yaml beside
+    # it); the user's file comes after it, so it wins
+    bag_params = bag / BAG_PARAMS if (bag / BAG_PARAMS).is_file() else None
+    ros = ["--ros-args"] + [arg for f in (bag_params, params_file) if f for arg in ("--params-file", str(f))]
+    if bag_params:
+        say(f"  the bag's parameters: {bag_params}")
     t0 = time.monotonic()
     try:
         if view:  # first, so the Foxglove app can connect while the nodes start

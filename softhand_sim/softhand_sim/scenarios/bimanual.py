@@ -58,6 +58,19 @@ def left_bone_targets(palm_pose, angles):
     return mirror_poses(forward_kinematics(mirror_poses(palm_pose)[0], angles)[1])
 
 
+def hand_joints(side, palm_pose, angles):
+    """(26,7) OpenXR joint poses of the kinematic hand `side` at palm_pose (7,) with digit angles
+    (5,4): what a tracker would report (the left hand mirrored as in left_bone_targets)."""
+    if side == "right":
+        return forward_kinematics(np.asarray(palm_pose, float), angles)[0]
+    return mirror_poses(forward_kinematics(mirror_poses(palm_pose)[0], angles)[0])
+
+
+def bone_targets(side, palm_pose, angles):
+    """(16,7) bone targets of hand `side` (right_bone_targets / left_bone_targets)."""
+    return (right_bone_targets if side == "right" else left_bone_targets)(palm_pose, angles)
+
+
 def _smooth(u):
     u = np.clip(u, 0.0, 1.0)
     return u * u * (3.0 - 2.0 * u)
@@ -122,19 +135,21 @@ class Handover:
     def duration(self):
         return self.T["end"]
 
+    def poses(self, t):
+        """{side: (palm pose (7,), digit angles (5,4))} of the hands at t (the left hand waits
+        until it is aimed and T["left_aim"] has come)."""
+        out = {"right": self.right(t)}
+        if self.left is None or t < self.T["left_aim"]:
+            out["left"] = (np.r_[self._left_wait, PALM_DOWN_FACING_BACK], self.opened * _smooth(t / 0.6))
+        else:
+            out["left"] = self.left(t)
+        return out
+
     def targets(self, t, runtime):
         """{side: (16,7)} bone targets of the step starting at t."""
         if self.left is None and t >= self.T["left_aim"]:
             self.aim(runtime.state.object_pose[runtime.object_names.index("ball"), :3])
-        palm, ang = self.right(t)
-        out = {"right": right_bone_targets(palm, ang)}
-        if self.left is None:
-            out["left"] = left_bone_targets(np.r_[self._left_wait, PALM_DOWN_FACING_BACK],
-                                            self.opened * _smooth(t / 0.6))
-        else:
-            palm, ang = self.left(t)
-            out["left"] = left_bone_targets(palm, ang)
-        return out
+        return {side: bone_targets(side, *pose) for side, pose in self.poses(t).items()}
 
 
 # ---------------------------------------------------------------------------- two-hand lift
@@ -192,10 +207,14 @@ class TwoHandLift:
                        - _smooth((t - T["hold1"]) / (T["lower1"] - T["hold1"])))
         return gap, lift
 
-    def targets(self, t, runtime=None):
+    def poses(self, t):
+        """{side: (palm pose (7,), digit angles (5,4))} of the hands at t."""
         gap, lift = self.profile(t)
         r, l = self._palms(gap, lift)
-        return {"right": right_bone_targets(r, self.flat), "left": left_bone_targets(l, self.flat)}
+        return {"right": (r, self.flat), "left": (l, self.flat)}
+
+    def targets(self, t, runtime=None):
+        return {side: bone_targets(side, *pose) for side, pose in self.poses(t).items()}
 
 
 PALM_GRIP_CENTRE = 0.03  # [m] the pressed palm's contact centre ahead of the wrist (measured)
@@ -301,3 +320,55 @@ def run(script_cls, obj, sim_overrides=None, until=None, progress=None, world_ov
                           obj_in_palm={"right": a["pr"], "left": a["pl"]},
                           contacts={"right": a["cr"], "left": a["cl"]}, min_tet_volume=a["vol"],
                           finite=finite, rejected_steps=runtime.rejected_steps, cg_iters=a["cg"])
+
+
+# ---------------------------------------------------------------------------- tracker bags
+BAG_RATE = 100.0  # [Hz] tracker frames of the two-hand bags (both hands, like the sample bags)
+
+
+def handover_aim(progress=None):
+    """Where the ball hangs in the right hand at Handover.T["left_aim"], from an offline run of the
+    script up to then (the left hand of a bag cannot look: its motion is planned on this)."""
+    seen = []
+    run(Handover, "ball", until=Handover.T["left_aim"] + 1e-6,
+        progress=lambda out, rec: (seen.append(rec["oh"][-1].copy()), progress and progress(out)))
+    return seen[-1]
+
+
+def tracker_frames(name, noise=True, aim=None):
+    """{side: (stamps_ns (n,) int64, joints (n, 26, 7))} of the two-hand bag `name` ('handover',
+    'two_hand_lift'): each hand's joints at BAG_RATE with the sample bags' timing jitter and
+    position noise (tracker_bags.sample's, seeded per hand). aim: the handover's ball position for
+    the left grip (handover_aim() when None)."""
+    from softhand_sim.scenarios.tracker_bags import POSITION_NOISE, STAMP0_NS, TIMING_JITTER
+    from softhand_sim.scene import load_scene
+
+    scene = load_scene()
+    if name == "handover":
+        script = Handover(scene)
+        script.aim(handover_aim() if aim is None else np.asarray(aim, float))
+    elif name == "two_hand_lift":
+        script = TwoHandLift(scene)
+    else:
+        raise ValueError(f"unknown two-hand bag {name!r}; known: {', '.join(TWO_HAND_BAGS)}")
+    out = {}
+    for k, side in enumerate(("right", "left")):
+        rng = np.random.default_rng(100 + 10 * list(TWO_HAND_BAGS).index(name) + k)
+        count = int(np.floor(script.duration * BAG_RATE)) + 1
+        times = np.arange(count) / BAG_RATE + rng.uniform(-TIMING_JITTER, TIMING_JITTER, count)
+        times[0] = 0.0
+        times = np.clip(times, 0.0, script.duration)
+        joints = np.stack([hand_joints(side, *script.poses(t)[side]) for t in times])
+        if noise:
+            joints[:, :, :3] += rng.normal(0.0, POSITION_NOISE, size=joints[:, :, :3].shape)
+        out[side] = (STAMP0_NS + np.round(times * 1e9).astype(np.int64), joints)
+    return out
+
+
+#: two-hand bags of bags/ (tools/make_bags.py) -> the sim_node / world_node parameters they need
+#: (written beside the bag as params.yaml; `softhand demo` uses it): the big box needs the stiffer
+#: object coupling of TwoHandLift.
+TWO_HAND_BAGS = {
+    "handover": {},
+    "two_hand_lift": {"sim_node": TwoHandLift.SIM_OVERRIDES, "world_node": TwoHandLift.WORLD_OVERRIDES},
+}
