@@ -57,9 +57,9 @@ PHASES = (  # name, bag, impairment of every host's uplink
 # DDS sends user data by unicast to each matched reader's participant, so a topic read by two
 # processes on one host crosses that host's link twice.
 ROUTES = {
-    "/tracker/hand_joints": ("headset", {"workstation": 1}),            # record
-    "/hand/intermediate_bones": ("headset", {"workstation": 2}),        # sim, record
-    "/hand/bones": ("workstation", {"headset": 1}),                     # tracking
+    "/tracker/right/hand_joints": ("headset", {"workstation": 1}),      # record
+    "/hand/right/intermediate_bones": ("headset", {"workstation": 2}),  # sim, record
+    "/hand/right/bones": ("workstation", {"headset": 1}),               # tracking
     "/hand/object_states": ("workstation", {"server": 1}),              # world
     "/world/object_states": ("server", {"workstation": 2}),             # sim, record
     "/world/markers": ("server", {"workstation": 1}),                   # record
@@ -69,8 +69,8 @@ ROUTES = {
 # What the workstation records: every topic crossing the LAN and the sim's state; not the skin
 # (local to the workstation, 216 kB messages: the recorder would mostly wait for the disk and a
 # core; the viewer measurement covers the skin topics).
-RECORDED = ("/tracker/hand_joints", "/hand/intermediate_bones", "/hand/bones", "/hand/object_states",
-            "/world/object_states", "/hand/contacts", "/world/markers", "/diagnostics")
+RECORDED = ("/tracker/right/hand_joints", "/hand/right/intermediate_bones", "/hand/right/bones",
+            "/hand/object_states", "/world/object_states", "/hand/contacts", "/world/markers", "/diagnostics")
 MAX_HOLE_S = 0.3  # [s] a longer gap between the stamps of a periodic remote topic is a hole
 
 
@@ -131,27 +131,27 @@ def holes(times, skip=None, limit=MAX_HOLE_S):
 
 
 def latency(bag):
-    """Tracker frame (published on the headset) -> /hand/bones (published on the workstation) [ms].
+    """Tracker frame (published on the headset) -> /hand/right/bones (published on the workstation) [ms].
 
     The hosts share one clock (namespaces of one machine). The recording on the workstation has
     the receive time of each tracker frame and of each intermediate-bone message, both sent by the
     headset over the same path, and the header stamp (headset send time) of the latter: their
     one-way delay (network + the recorder's wait for a core). A frame received at t was
     published at t0 = t - median one-way; it is in the simulation once the first intermediate-bone
-    message stamped after t0 has arrived and the next /hand/bones follows. Returns (e2e ms array,
+    message stamped after t0 has arrived and the next /hand/right/bones follows. Returns (e2e ms array,
     one-way ms array). On a loaded machine the low percentiles of the one-way delay show the
     network, the median mostly the processes' waits.
     """
-    inter = bag["/hand/intermediate_bones"]
+    inter = bag["/hand/right/intermediate_bones"]
     i_recv = np.array([t for t, _, _ in inter])
     i_stamp = np.array([stamp_s(m) for _, _, m in inter])
     one_way = i_recv - i_stamp
     d = float(np.median(one_way))
-    bones = np.array([t for t, _, _ in bag["/hand/bones"]])
+    bones = np.array([t for t, _, _ in bag["/hand/right/bones"]])
     order = np.argsort(i_stamp)
     i_stamp, i_recv = i_stamp[order], i_recv[order]
     e2e = []
-    for t, _, _ in bag["/tracker/hand_joints"]:
+    for t, _, _ in bag["/tracker/right/hand_joints"]:
         t0 = t - d
         k = np.searchsorted(i_stamp, t0, side="right")
         if k >= len(i_stamp):
@@ -254,8 +254,8 @@ def run_phase(hs, lan, out, name, bag_name, impairment):
     hs.start("workstation", rec_name, [console_script("softhand-record"), "-o", str(out / name / "bag"),
                                        "--topics", *RECORDED, "--ros-args", "-p", "flush_period:=0.5"])
     # the recorder (workstation) must hear the headset's tracker before the first frame is sent
-    hs.probe("workstation", ["--pub", "/hand/intermediate_bones", "/world/object_states",
-                             "--sub", "/hand/bones:2", "/hand/object_states:2"], timeout=60)
+    hs.probe("workstation", ["--pub", "/hand/right/intermediate_bones", "/world/object_states",
+                             "--sub", "/hand/right/bones:2", "/hand/object_states:2"], timeout=60)
     time.sleep(1.0)
     before = lan.switch_stats()
     t_start = time.time()
@@ -285,7 +285,7 @@ def run_phase(hs, lan, out, name, bag_name, impairment):
             "dead": dead, "record_code": code, "play_code": play_code, "t_start": t_start, "rtt": rtt}
 
 
-VIEWER_TOPICS = ("/hand/skin_vertices", "/hand/skin_marker", "/hand/skin_mesh")
+VIEWER_TOPICS = ("/hand/right/skin_vertices", "/hand/right/skin_marker", "/hand/right/skin_mesh")
 
 
 def measure_viewer(hs, lan, out, window=4.0):
@@ -297,7 +297,7 @@ def measure_viewer(hs, lan, out, window=4.0):
     base = (lan.switch_stats()["headset"]["tx_bytes"] - a) / 2.0
     hs.start("headset", "viewer", [console_script("softhand-record"), "-o", str(out / "viewer" / "bag"),
                                    "--topics", *VIEWER_TOPICS])
-    hs.probe("headset", ["--sub", "/hand/skin_vertices"], timeout=60)
+    hs.probe("headset", ["--sub", "/hand/right/skin_vertices"], timeout=60)
     time.sleep(1.0)
     b, t0 = lan.switch_stats()["headset"]["tx_bytes"], time.time()
     time.sleep(window)
@@ -340,8 +340,9 @@ def lan_runs(tmp_path_factory):
             hs.start("server", "world", [console_script("softhand-world"), "--ros-args", *DIAG])
             hs.start("workstation", "sim", [console_script("softhand-sim"), "--ros-args", *DIAG])
             hs.start("headset", "tracking", [console_script("softhand-tracking"), "--ros-args", *DIAG])
-            hs.probe("workstation", ["--pub", "/hand/bones", "/world/object_states", "/hand/intermediate_bones",
-                                     "--sub", "/hand/bones", "/hand/object_states", "/hand/intermediate_bones"],
+            hs.probe("workstation", ["--pub", "/hand/right/bones", "/world/object_states",
+                                     "/hand/right/intermediate_bones", "--sub", "/hand/right/bones",
+                                     "/hand/object_states", "/hand/right/intermediate_bones"],
                      timeout=400)
             for name, bag_name, impairment in PHASES:
                 runs.append(run_phase(hs, lan, out, name, bag_name, impairment))
@@ -400,35 +401,35 @@ def test_demo_across_hosts(lan_runs):
     # The recorder reads the tracker best effort (any tracker matches): a frame is lost only when the
     # recorder falls behind and its socket buffer overflows. Measured: 1171 of 1171 frames, and
     # 1160 of 1171 at load 11 on 2 cores with the recorder 1-2 s behind.
-    assert len(data["/tracker/hand_joints"]) >= 0.99 * bag_frames(r["bag_name"])
+    assert len(data["/tracker/right/hand_joints"]) >= 0.99 * bag_frames(r["bag_name"])
     check_every_step_recorded(data)
-    for topic in ("/hand/intermediate_bones", "/world/object_states"):
+    for topic in ("/hand/right/intermediate_bones", "/world/object_states"):
         assert not holes([stamp_s(m) for _, _, m in data[topic]]), (topic, holes([stamp_s(m) for _, _, m in data[topic]]))
 
 
 def check_every_step_recorded(data):
-    """sim_node's step counter (its /diagnostics) against the /hand/bones recorded between two statuses."""
+    """sim_node's step counter (its /diagnostics) against the /hand/right/bones recorded between two statuses."""
     rows = [(t, int(v["steps"])) for t, v in diag_rows(data, "sim_node")]
-    bones = np.array([stamp_s(m) for _, _, m in data["/hand/bones"]])
+    bones = np.array([stamp_s(m) for _, _, m in data["/hand/right/bones"]])
     (ta, sa), (tb, sb) = rows[1], rows[-1]
     recorded = int(np.count_nonzero((bones > ta) & (bones <= tb)))
-    assert abs(recorded - (sb - sa)) <= 1, f"sim stepped {sb - sa} times, {recorded} /hand/bones recorded"
+    assert abs(recorded - (sb - sa)) <= 1, f"sim stepped {sb - sa} times, {recorded} /hand/right/bones recorded"
 
 
 @pytest.mark.parametrize("phase", ["delay", "loss", "outage"])
 def test_bad_network_survived(lan_runs, phase):
-    """No node died, every recorded value finite, /hand/bones never stopped, the tracked hand
+    """No node died, every recorded value finite, /hand/right/bones never stopped, the tracked hand
     went on reaching the workstation, and no hole in the recording but the outage."""
     r = lan_runs["runs"][phase]
     assert not r["dead"] and r["record_code"] == 0 and r["play_code"] == 0
     assert r["summary"]["all_finite"]
     data = r["data"]
-    for topic in ("/hand/intermediate_bones", "/world/object_states"):  # remote, stamped by the publisher
+    for topic in ("/hand/right/intermediate_bones", "/world/object_states"):  # remote, stamped by the publisher
         stamps = [stamp_s(m) for _, _, m in data[topic]]
         assert len(stamps) > 100, topic
         assert not holes(stamps, r["outage"]), f"{phase}: holes in {topic}: {holes(stamps, r['outage'])}"
-    check_every_step_recorded(data)  # /hand/bones: local, every step
-    frames = len(data["/tracker/hand_joints"])  # best effort: lost packets are lost
+    check_every_step_recorded(data)  # /hand/right/bones: local, every step
+    frames = len(data["/tracker/right/hand_joints"])  # best effort: lost packets are lost
     expected = bag_frames(r["bag_name"]) - (150 if phase == "outage" else 0)  # 1 s down: 100 frames
     assert frames >= 0.95 * expected, f"{frames} of {expected} tracker frames recorded"
 
@@ -441,8 +442,8 @@ def test_outage_hold_track_decouple_count(lan_runs):
     t_down, t_up = r["outage"]
     data = r["data"]
     # by the publishers' stamps: the recorder's receive times lag on a loaded machine
-    inter = sorted((stamp_s(m), palm(m)) for _, _, m in data["/hand/intermediate_bones"])
-    bones = sorted((stamp_s(m), palm(m)) for _, _, m in data["/hand/bones"])
+    inter = sorted((stamp_s(m), palm(m)) for _, _, m in data["/hand/right/intermediate_bones"])
+    bones = sorted((stamp_s(m), palm(m)) for _, _, m in data["/hand/right/bones"])
     before = [p for t, p in inter if t < t_down]
     crossed = [t for t, _ in inter if t_down + 0.2 < t < t_up - 0.2]
     assert before and crossed == [], f"{len(crossed)} targets stamped in the outage crossed a down link"
@@ -489,7 +490,7 @@ def test_latency_and_bandwidth_table(lan_runs):
         step = np.nanmedian([float(v["step_ms_p50"]) for v in rows])
         rate = np.nanmedian([float(v["sim_rate_hz"]) for v in rows])
         # a frame waits <= 4 ms for the 250 Hz tracking step, then target delay, then on average half
-        # a sim period for the next step, which publishes /hand/bones step_ms later
+        # a sim period for the next step, which publishes /hand/right/bones step_ms later
         model = 2.0 + sim_delay + 500.0 / rate + step
         lat[name] = (np.percentile(r["rtt"], 10), model)
         lines.append(f"{name:7s} {np.percentile(r['rtt'], 10):14.1f} / {np.percentile(r['rtt'], 50):6.1f} "
@@ -530,7 +531,7 @@ def test_latency_and_bandwidth_table(lan_runs):
     print("\n".join(lines))
     assert lat["delay"][0] > lat["clean"][0] + 25.0, lat   # 2 x (20 - 5) ms more on the round trip
     assert all(np.isfinite(v).all() for v in lat.values()), lat
-    skin_rate, skin_size, skin_bps = v["topics"]["/hand/skin_vertices"]
+    skin_rate, skin_size, skin_bps = v["topics"]["/hand/right/skin_vertices"]
     assert skin_size > 100e3 and skin_rate > 5.0, v["topics"]
     assert v["link_bytes_per_s"] >= 0.8 * sum(x[2] for x in v["topics"].values()), v
     for h in HOSTS:  # the topics explain the traffic: DDS framing and acks add, never remove

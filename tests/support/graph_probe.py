@@ -1,6 +1,6 @@
 """Wait until this host's view of the ROS graph has the given publishers and subscribers.
 
-    python graph_probe.py --timeout 60 --pub /world/object_states --sub /hand/bones:1
+    python graph_probe.py --timeout 60 --pub /world/object_states --sub /hand/right/bones:1
 
 Run inside a host namespace (tests/support/netns.py): the discovery of another host is done when
 its publishers and subscribers show here. Exit 0 when every condition holds, 1 with the missing

@@ -2,7 +2,7 @@
 
     def test_x(ros_env, tmp_path):
         with RosGraph(ros_env) as g:                      # in-process rclpy on the test's domain
-            sub = g.listen("/hand/bones", PoseArray)
+            sub = g.listen("/hand/right/bones", PoseArray)
             proc = g.start(["softhand-play", str(bag)])   # subprocess with ros_env
             g.wait_until(lambda: len(sub.msgs) >= 10, 20, "bones")
             assert proc.stop() == 0                       # SIGINT, exit code
