@@ -10,7 +10,8 @@ motions are described in softhand_sim/scenarios/tracker_bags.py. The two-hand ba
 two_hand_lift: softhand_sim/scenarios/bimanual.py) have /tracker/right/hand_joints and
 /tracker/left/hand_joints, and a params.yaml beside them with the node parameters their scene needs
 (`softhand demo` passes it to the nodes). The handover's left hand is aimed at the ball where an
-offline run of the script has it hang (about a minute).
+offline run of the script has it hang (about a minute). `grasp_short_left` is grasp_short mirrored
+through the xz plane (the ball sits on it), a left hand on /tracker/left/hand_joints.
 """
 import argparse
 import shutil
@@ -19,7 +20,7 @@ from pathlib import Path
 
 import yaml
 
-from softhand_sim.scenarios.bimanual import TWO_HAND_BAGS, tracker_frames
+from softhand_sim.scenarios.bimanual import TWO_HAND_BAGS, mirror_poses, tracker_frames
 from softhand_sim.scenarios.tracker_bags import SCENARIOS, sample
 from softhand_sim.ros.bagio import TYPESTORE, serialize, write_bag
 from softhand_sim.topics import LEGACY_TRACKER, tracker_topic
@@ -27,6 +28,7 @@ from softhand_sim.topics import LEGACY_TRACKER, tracker_topic
 TOPIC = LEGACY_TRACKER
 MSGTYPE = "geometry_msgs/msg/PoseArray"
 PARAMS_FILE = "params.yaml"  # beside a bag: the node parameters its scene needs (softhand demo reads it)
+MIRRORED = {"grasp_short_left": "grasp_short"}  # left-hand bag -> the right-hand sample it mirrors
 
 
 def pose_array(stamp_ns, joints):
@@ -51,6 +53,19 @@ def make_bag(name, out_dir: Path) -> Path:
     return write_bag(path, records, storage="mcap")
 
 
+def make_mirrored_bag(name, out_dir: Path) -> Path:
+    """A left-hand bag: the frames of a right-hand sample mirrored through the xz plane (y -> -y,
+    each joint pose mirrored as bimanual.mirror_poses does), on /tracker/left/hand_joints."""
+    path = out_dir / name
+    if path.exists():
+        shutil.rmtree(path)
+    stamps, joints, _ = sample(MIRRORED[name])
+    topic = tracker_topic("left")
+    records = ((topic, MSGTYPE, int(s), serialize(pose_array(int(s), mirror_poses(j)), MSGTYPE))
+               for s, j in zip(stamps, joints))
+    return write_bag(path, records, storage="mcap")
+
+
 def make_two_hand_bag(name, out_dir: Path) -> Path:
     """A two-hand bag: both sides' tracker topics, interleaved by capture time, and params.yaml."""
     path = out_dir / name
@@ -71,13 +86,16 @@ def make_two_hand_bag(name, out_dir: Path) -> Path:
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", default=str(Path(__file__).resolve().parents[1] / "bags"))
-    names = [*SCENARIOS, *TWO_HAND_BAGS]
+    names = [*SCENARIOS, *MIRRORED, *TWO_HAND_BAGS]
     parser.add_argument("--only", nargs="*", choices=sorted(names), help="bags to write (default: all)")
     args = parser.parse_args(argv)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     for name in args.only or names:
-        path = make_two_hand_bag(name, out) if name in TWO_HAND_BAGS else make_bag(name, out)
+        if name in TWO_HAND_BAGS:
+            path = make_two_hand_bag(name, out)
+        else:
+            path = make_mirrored_bag(name, out) if name in MIRRORED else make_bag(name, out)
         size = sum(f.stat().st_size for f in path.iterdir())
         print(f"{path}: {size / 1e6:.2f} MB")
     return 0

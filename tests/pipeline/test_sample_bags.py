@@ -10,7 +10,7 @@ from mcap_ros2.decoder import DecoderFactory
 
 from softhand_sim.handmodel.skeleton_names import OPENXR_JOINT_COUNT
 from softhand_sim.scenarios import tracker_bags
-from softhand_tracking.adapter import TrackerAdapter, bone_lengths
+from softhand_tracking.adapter import AdapterConfig, TrackerAdapter, bone_lengths
 from softhand_sim.ros.bagio import deserialize, read_topic
 from softhand_sim.ros.msgs import pose_array_to_numpy
 from softhand_sim.handmodel.kinematics import DIGIT_LIMITS, default_dims, forward_kinematics
@@ -171,3 +171,65 @@ def test_generation_is_deterministic(tmp_path):
             a, b = deserialize(raw_new, MSGTYPE), deserialize(raw_old, MSGTYPE)
             assert a.header.frame_id == b.header.frame_id and a.header.stamp == b.header.stamp, name
             np.testing.assert_allclose(pose_array_to_numpy(a), pose_array_to_numpy(b), rtol=0, atol=1e-12)
+
+
+# ------------------------------------------------------------------ left-hand and two-hand bags
+
+def _side_frames(path, side):
+    from softhand_sim.topics import tracker_topic
+
+    data = read_topic(path, tracker_topic(side), MSGTYPE)
+    return data.stamps_ns, np.stack([pose_array_to_numpy(deserialize(raw, MSGTYPE)) for raw in data.payloads])
+
+
+def test_left_bag_mirrors_its_right_original():
+    """grasp_short_left holds grasp_short's frames, same stamps, every joint pose mirrored through
+    the xz plane, on /tracker/left/hand_joints only."""
+    from rosbags.rosbag2 import Reader
+
+    from softhand_sim.scenarios.bimanual import mirror_poses
+
+    with Reader(BAGS / "grasp_short_left") as r:
+        assert {c.topic for c in r.connections} == {"/tracker/left/hand_joints"}
+    stamps, left = _side_frames(BAGS / "grasp_short_left", "left")
+    right = read_topic(BAGS / "grasp_short", TOPIC, MSGTYPE)
+    assert stamps == right.stamps_ns
+    for k, raw in enumerate(right.payloads):
+        np.testing.assert_allclose(left[k], mirror_poses(pose_array_to_numpy(deserialize(raw, MSGTYPE))), atol=1e-12)
+
+
+@pytest.mark.parametrize("name", ["handover", "two_hand_lift"])
+def test_two_hand_bags_have_both_hands_on_one_timeline(name):
+    """Both sides' tracker topics, ~100 Hz each over the script's duration, interleaved in one time
+    order (bag time = capture stamp), 26 finite joints per frame; the left hand's frames are a left
+    hand's: its adapter accepts every one. The two-hand lift carries its scene's parameters."""
+    import yaml
+
+    from softhand_sim.scenarios import bimanual
+
+    duration = {"handover": bimanual.Handover.T["end"], "two_hand_lift": bimanual.TwoHandLift.T["end"]}[name]
+    for side in ("right", "left"):
+        stamps, joints = _side_frames(BAGS / name, side)
+        rate = (len(stamps) - 1) / ((stamps[-1] - stamps[0]) * 1e-9)
+        assert 95 <= rate <= 105 and abs((stamps[-1] - stamps[0]) * 1e-9 - duration) < 0.02, (side, rate)
+        assert joints.shape[1:] == (26, 7) and np.all(np.isfinite(joints))
+        adapter = TrackerAdapter(AdapterConfig(hand=side))
+        assert all(adapter.convert(j[:, :3]) is not None for j in joints[::10]), side
+    params = BAGS / name / "params.yaml"
+    want = bimanual.TWO_HAND_BAGS[name]
+    assert params.is_file() == bool(want)
+    if want:
+        data = yaml.safe_load(params.read_text())
+        assert {node: v["ros__parameters"] for node, v in data.items()} == want
+
+
+def test_two_hand_lift_bag_is_regenerated_exactly(tmp_path):
+    """tools/make_bags.py writes two_hand_lift and grasp_short_left as shipped (a kinematic script:
+    no simulation in it; the handover's aim comes from an offline run and is checked above)."""
+    subprocess.run([sys.executable, str(REPO / "tools" / "make_bags.py"), "--out", str(tmp_path),
+                    "--only", "two_hand_lift", "grasp_short_left"], check=True, capture_output=True, timeout=120)
+    for name, sides in (("two_hand_lift", ("right", "left")), ("grasp_short_left", ("left",))):
+        for side in sides:
+            new, old = _side_frames(tmp_path / name, side), _side_frames(BAGS / name, side)
+            assert new[0] == old[0], (name, side)
+            np.testing.assert_allclose(new[1], old[1], rtol=0, atol=1e-12)
