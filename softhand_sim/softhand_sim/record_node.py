@@ -1,7 +1,7 @@
 """record_node: records softhand topics into a rosbag2 directory with mcap storage.
 
     softhand-record [-o OUTPUT] [--topics T [T ...]] [--skin-vertices]
-    ros2 run softhand_sim record_node --ros-args -p output:=run1 -p topics:="['/hand/bones']"
+    ros2 run softhand_sim record_node --ros-args -p output:=run1 -p topics:="['/hand/right/bones']"
 
 What it writes: one mcap file plus metadata.yaml (rosbags Writer, mcap storage, laid out like
 rosbag2 Jazzy's: softhand_sim.ros.bagio.JazzyWriter). Every channel carries its message

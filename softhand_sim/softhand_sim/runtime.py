@@ -48,7 +48,7 @@ from softhand_sim.physics.state import State
 # stopped at its cap with a residual this far above its tolerance.
 GUARD_MAX_KINETIC_ENERGY = 1000.0
 GUARD_CAP_RESIDUAL_FACTOR = 1e3
-DISPLAY_TRIANGLES = 3000  # /hand/skin_marker: a decimated skin keeps 10 Hz markers light
+DISPLAY_TRIANGLES = 3000  # /hand/{side}/skin_marker: a decimated skin keeps 10 Hz markers light
 
 # The stages of SimRuntime.step in order (StepOutput.stages): targets (object copies extrapolated
 # into the Control; bone targets enter it on receipt, set_bone_targets), the solver's
