@@ -127,10 +127,11 @@ def test_two_hands_publish_per_side(ros_env):
     print(f"/hand/left/bones: {len(stamps['left'])} messages at {rate:.1f} Hz of simulated time "
           f"(sim_rate {SIM_RATE}); step_ms_p50 {both['step_ms_p50']}, tick_ms_p99 {both['tick_ms_p99']}")
     assert rate > 0.75 * SIM_RATE
-    # each hand ends where its targets are: the right hovering at +y, the left on the table at -y
-    for s in SIDES:
-        palm = rm.pose_array_to_numpy(bones[s].msgs[-1])[0]
-        assert np.abs(palm[:3] - goal[s][0, :3]).max() < 0.01, (s, palm, goal[s][0])
+    # each hand ends at its targets: the right hovering at +y; the left at -y, pushed up by the table
+    # (4 N on the 500 N/m palm coupling: ~8 mm in SimRuntime alone)
+    right, left = (rm.pose_array_to_numpy(bones[s].msgs[-1])[0] for s in SIDES)
+    assert np.abs(right[:3] - goal["right"][0, :3]).max() < 2e-3, right
+    assert np.abs(left[:2] - goal["left"][0, :2]).max() < 5e-3 and 2e-3 < left[2] - goal["left"][0, 2] < 0.015, left
 
     # skin: the latched meshes (one message per hand model), the markers at skin_marker_rate
     mesh = {s: late[s].msgs[0] for s in SIDES}
