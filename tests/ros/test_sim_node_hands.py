@@ -28,7 +28,10 @@ from tests.support.rosproc import Collector, RosGraph
 
 pytestmark = [pytest.mark.ros, pytest.mark.flaky(reruns=1, reruns_delay=2)]  # real DDS on 2 shared cores
 
-SIM_RATE = 60.0
+# Two hands, one of them in contact with the table, step in ~16 ms (p50) on this project's 2 shared
+# cores while this process decodes their topics: 60 Hz has no headroom there, 30 Hz has. The
+# node's own rate is what is checked, at a rate the machine can hold.
+SIM_RATE = 30.0
 TFMessage, _ = tf_message_class()
 
 
@@ -125,7 +128,9 @@ def test_two_hands_publish_per_side(ros_env):
     span = (stamps["left"][-1] - stamps["left"][0]) * 1e-9
     rate = (len(stamps["left"]) - 1) / span
     print(f"/hand/left/bones: {len(stamps['left'])} messages at {rate:.1f} Hz of simulated time "
-          f"(sim_rate {SIM_RATE}); step_ms_p50 {both['step_ms_p50']}, tick_ms_p99 {both['tick_ms_p99']}")
+          f"(sim_rate {SIM_RATE}); " + ", ".join(f"{k} {both[k]}" for k in (
+              "step_ms_p50", "step_ms_p99", "stage_messages_ms_p50", "stage_publish_ms_p50", "tick_ms_p50",
+              "tick_ms_p99", "overruns", "sim_rate_hz")))
     assert rate > 0.75 * SIM_RATE
     # each hand ends at its targets: the right hovering at +y; the left at -y, pushed up by the table
     # (4 N on the 500 N/m palm coupling: ~8 mm in SimRuntime alone)
