@@ -14,6 +14,7 @@ After that the sizer ignores frames. A failure (no valid fit, a build error) end
 
 sim_node (hand_measures auto) waits for the fitted hand before it places any hand: it simulates
 nothing until poll() hands over the new runtime (handover() carries the latest inputs to it).
+One hand only: sim_node refuses `auto` with two hands (runtime.check_hand_measures).
 """
 from __future__ import annotations
 
@@ -22,15 +23,16 @@ import time
 
 import numpy as np
 
+from softhand_sim import topics
 from softhand_sim.handmodel.fit import MIN_FRAMES, fit_measures, frame_figures, hand_length
 
-TRACKER_TOPIC = "/tracker/hand_joints"
 STATES = ("collecting", "building", "ready", "failed")
 
 
 def tracker_topic(side: str) -> str:
-    """The tracker topic the sizer listens to for hand `side` (one topic for either side today)."""
-    return TRACKER_TOPIC
+    """The tracker topic the sizer listens to for hand `side`: that side's own frames,
+    /tracker/{side}/hand_joints (softhand_sim.topics)."""
+    return topics.tracker_topic(side)
 
 
 def measures_diagnostics(measures, source: str) -> dict:

@@ -65,8 +65,9 @@ SIM = {
                   10, 2000, positive=True),
     "hand_side": P(str, "right", "-", "which hand to simulate when `hands` is empty", choices=("right", "left")),
     "hand_measures": P(str, "default", "-", "the simulated hand's size: 'default' (19 cm), a measures file written by "
-                       "`softhand calibrate`, or 'auto': the first second of tracker frames (/tracker/hand_joints) "
-                       "is fitted and nothing is simulated until the hand at that size is ready (a few seconds)"),
+                       "`softhand calibrate`, or 'auto': the first second of tracker frames (/tracker/{side}/hand_joints) "
+                       "is fitted and nothing is simulated until the hand at that size is ready (a few seconds); "
+                       "auto sizes one hand: refused with two `hands`"),
     # [""], not []: ROS cannot type an empty list; empty entries are ignored
     "hands": P(list, [""], "-", "hands to simulate in one solver: [right], [left] or [right, left] "
                "(empty: the one hand of hand_side)"),
@@ -137,10 +138,13 @@ SIM = {
     "copy_timeout": P(float, 0.5, "s", "an engine copy older than this decouples its object", positive=True),
     "extrapolate": P(bool, False, "-", "extrapolate engine copies with constant acceleration (Sect. 3.7): off, measured "
                      "to throw a held ball once copies arrive >= 50 ms late (a loaded machine); plain copies held it"),
-    "skin_marker_rate": P(float, 10.0, "Hz", "rate of /hand/skin_marker", positive=True),
-    "publish_skin_vertices": P(bool, True, "-", "publish /hand/skin_vertices (only while someone subscribes)"),
-    "skin_vertices_rate": P(float, 0.0, "Hz", "rate of /hand/skin_vertices; 0 = every step (sim_rate). A remote "
-                            "viewer's link carries ~142 kB per message: 8.5 MB/s at 60 Hz", 0.0, 2000.0),
+    "skin_marker_rate": P(float, 10.0, "Hz", "rate of /hand/{side}/skin_marker and /hand/contact_markers",
+                          positive=True),
+    "publish_skin_vertices": P(bool, True, "-", "publish /hand/{side}/skin_vertices (only while someone "
+                               "subscribes)"),
+    "skin_vertices_rate": P(float, 0.0, "Hz", "rate of /hand/{side}/skin_vertices; 0 = every step (sim_rate). "
+                            "~142 kB per message: 8.5 MB/s per hand at 60 Hz on a remote viewer's link",
+                            0.0, 2000.0),
     "diagnostics_rate": P(float, 1.0, "Hz", "rate of /diagnostics", positive=True),
 }
 
@@ -219,8 +223,10 @@ PLAY = {
 RECORD = {
     "output": P(str, "", "-", "rosbag2 directory to create (empty: runs/<stamp>/bag)"),
     # [""], not []: ROS cannot type an empty list; empty entries are ignored
-    "topics": P(list, [""], "-", "topics to record (empty: every softhand topic but /hand/skin_vertices)"),
-    "record_skin_vertices": P(bool, False, "-", "also record /hand/skin_vertices (large)"),
+    "topics": P(list, [""], "-", "topics to record (empty: every softhand topic of both hands but "
+                 "/hand/{side}/skin_vertices)"),
+    "record_skin_vertices": P(bool, False, "-", "also record /hand/right/skin_vertices and "
+                              "/hand/left/skin_vertices (large)"),
     "progress_period": P(float, 5.0, "s", "how often to log messages/MB written", 0.1, 3600.0),
     "flush_period": P(float, 1.0, "s", "write the pending mcap chunk this often (bounds what a SIGKILL loses)",
                       0.05, 3600.0),

@@ -1,15 +1,15 @@
 """record_node: records softhand topics into a rosbag2 directory with mcap storage.
 
     softhand-record [-o OUTPUT] [--topics T [T ...]] [--skin-vertices]
-    ros2 run softhand_sim record_node --ros-args -p output:=run1 -p topics:="['/hand/bones']"
+    ros2 run softhand_sim record_node --ros-args -p output:=run1 -p topics:="['/hand/right/bones']"
 
 What it writes: one mcap file plus metadata.yaml (rosbags Writer, mcap storage, laid out like
 rosbag2 Jazzy's: softhand_sim.ros.bagio.JazzyWriter). Every channel carries its message
 definition as a ros2msg schema and, in its metadata, `topic_type_hash` (RIHS01) and
 `offered_qos_profiles`; metadata.yaml has the same per topic and `ros_distro: jazzy`. So `ros2
 bag info`, `ros2 bag play`, Foxglove and the mcap/mcap_ros2 readers open and decode it, and a
-replay offers each topic with the recorded QoS (/hand/skin_mesh stays transient local for a
-late-joining viewer).
+replay offers each topic with the recorded QoS (/hand/{side}/skin_mesh stays transient local
+for a late-joining viewer).
 
 Offered QoS: like `ros2 bag record`, the QoS profiles of the topic's publishers as discovery
 reports them (get_publishers_info_by_topic: reliability, durability, deadline, lifespan,
@@ -17,15 +17,19 @@ liveliness; history "unknown" and depth 0, which DDS does not announce). They ar
 topic's first message arrives -- the channel is added to the bag then -- because the INTERFACE.md
 topics are subscribed at start, often before any publisher exists. A topic whose publishers
 cannot be seen then (or that had no message at all: its channel is added on close) gets the
-contract QoS of INTERFACE.md (softhand_sim.ros.common: LATCHED_QOS for /hand/skin_mesh, else
-PUB_QOS); the log says which was used.
+contract QoS of INTERFACE.md (softhand_sim.ros.common: LATCHED_QOS for the LATCHED_TOPICS,
+/hand/{side}/skin_mesh and /tf_static, else PUB_QOS); the log says which was used.
+
+Two hands (softhand_sim.topics): the default list holds both sides' topics; the side a system does
+not run simply has no messages (its channel is listed with 0 messages, like rosbag2's).
 
 How it subscribes: the topics of docs/INTERFACE.md are subscribed at start with their contract QoS
-(reliable; /hand/skin_mesh transient local, so the mesh published once is received even when
-the recorder starts later), but /tracker/hand_joints, whose QoS is the tracker's choice: it is
-subscribed when its first publisher is seen, with that publisher's QoS (reliable for
-softhand-play, so no frame is dropped; `softhand-play --wait-for-nodes record_node` starts the
-replay only once the recorder has subscribed). Any
+(reliable; /hand/{side}/skin_mesh transient local, so the mesh published once is received even
+when the recorder starts later), but the tracker topics (topics.TRACKER_TOPICS:
+/tracker/{side}/hand_joints and the legacy /tracker/hand_joints), whose QoS is the tracker's
+choice: each is subscribed when its first publisher is seen, with that publisher's QoS (reliable
+for softhand-play, so no frame is dropped; `softhand-play --wait-for-nodes record_node` starts
+the replay only once the recorder has subscribed). Any
 other topic is subscribed, like `ros2 bag record` does, when its first publisher is discovered
 (checked every `discovery_period` s), with the publishers' QoS: reliable unless one of them is
 best effort, transient local when all are. Messages are taken raw (CDR bytes, never
@@ -52,6 +56,7 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 
 from softhand_sim.ros.common import (LATCHED_QOS, LATCHED_TOPICS, PUB_QOS, TOPIC_TYPES, message_class,
                                      run_node, split_cli)
+from softhand_sim.topics import HEAVY_TOPICS, POSE_ARRAY, TRACKER_TOPICS
 from softhand_sim.params import ParamError
 from softhand_sim.ros.params import declare_node_params
 from softhand_sim.ros.bagio import (BagError, add_topic, flush_chunk, header_stamp_ns, known_type, open_writer,
@@ -59,15 +64,16 @@ from softhand_sim.ros.bagio import (BagError, add_topic, flush_chunk, header_sta
 
 __all__ = ["RecordNode", "header_stamp_ns", "main"]  # header_stamp_ns: kept importable from here
 
-#: Default topic list: every softhand topic of docs/INTERFACE.md but the heavy /hand/skin_vertices
-#: (/tf and /tf_static included; skipped with one warning where tf2_msgs is not built).
-DEFAULT_TOPICS = [t for t in TOPIC_TYPES if t != "/hand/skin_vertices"]
+#: Default topic list: every softhand topic of docs/INTERFACE.md, both sides, but the heavy
+#: /hand/{side}/skin_vertices (HEAVY_TOPICS); /tf and /tf_static included (skipped with one
+#: warning where tf2_msgs is not built).
+DEFAULT_TOPICS = [t for t in TOPIC_TYPES if t not in HEAVY_TOPICS]
 
 #: Contract topics whose publishers choose the QoS (a tracker may be reliable or sensor-data best
 #: effort): subscribed when the first publisher is seen, with its QoS, like `ros2 bag record`. A
 #: best-effort reader at start would match either, but under load it drops frames a reliable
 #: tracker resent (measured: 664 of 666 recorded while tracking_node received all 666).
-ADAPTIVE_TOPICS = frozenset({"/tracker/hand_joints"})
+ADAPTIVE_TOPICS = TRACKER_TOPICS
 
 
 
@@ -80,9 +86,9 @@ def build_parser() -> argparse.ArgumentParser:
                "discovery_period, stamp_source (--ros-args -p NAME:=VALUE); flags override them.")
     p.add_argument("-o", "--output", default=None, help="rosbag2 directory to create (must not exist)")
     p.add_argument("--topics", nargs="+", default=None, metavar="TOPIC",
-                   help="topics to record (default: every softhand topic but /hand/skin_vertices)")
+                   help="topics to record (default: every softhand topic of both hands but /hand/{side}/skin_vertices)")
     p.add_argument("--skin-vertices", dest="record_skin_vertices", action="store_true", default=None,
-                   help="also record /hand/skin_vertices")
+                   help="also record /hand/right/skin_vertices and /hand/left/skin_vertices")
     p.add_argument("--stamp-source", dest="stamp_source", choices=("receive", "header"), default=None,
                    help="bag timestamp of each message (default: receive time)")
     return p
@@ -122,8 +128,8 @@ class RecordNode(Node):
         if cfg["stamp_source"] not in ("receive", "header"):
             raise BagError(f"stamp_source must be 'receive' or 'header', got {cfg['stamp_source']!r}")
         topics = [t for t in cfg["topics"] if t] or list(DEFAULT_TOPICS)
-        if cfg["record_skin_vertices"] and "/hand/skin_vertices" not in topics:
-            topics.append("/hand/skin_vertices")
+        if cfg["record_skin_vertices"]:
+            topics += sorted(HEAVY_TOPICS)  # both sides; duplicates dropped below
         self.wanted = list(dict.fromkeys(topics))
         output = cfg["output"] or os.path.join("runs", time.strftime("%Y%m%d-%H%M%S"), "bag")
         self.writer = open_writer(output, "mcap")
@@ -160,8 +166,8 @@ class RecordNode(Node):
             if topic in self.subs:
                 continue
             if topic in ADAPTIVE_TOPICS:  # known type, QoS of its publishers: wait for one
-                if self.count_publishers(topic):
-                    self._subscribe(topic, TOPIC_TYPES[topic], self._qos_for(topic))
+                if self.count_publishers(topic):  # every tracker topic, the legacy one too, is a PoseArray
+                    self._subscribe(topic, TOPIC_TYPES.get(topic, POSE_ARRAY), self._qos_for(topic))
                 continue
             if topic in TOPIC_TYPES:  # known type: subscribe now, miss nothing at start
                 self._subscribe(topic, TOPIC_TYPES[topic], self._known_qos(topic))

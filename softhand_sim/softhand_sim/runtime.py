@@ -34,6 +34,7 @@ from softhand_sim.physics.coupling import warm_up as coupling_warm_up
 from softhand_sim.handmodel import load_or_build_hand
 from softhand_sim.handmodel.measures import as_measures
 from softhand_sim.hand_sizer import measures_diagnostics
+from softhand_sim.params import ParamError
 from softhand_sim.physics.hands import HAND_CODE, SIDES, union_asset
 from softhand_sim.physics.model import build_model
 from softhand_sim.physics.rotations import quat_mul, quat_conj, quat_to_matrix
@@ -47,7 +48,7 @@ from softhand_sim.physics.state import State
 # stopped at its cap with a residual this far above its tolerance.
 GUARD_MAX_KINETIC_ENERGY = 1000.0
 GUARD_CAP_RESIDUAL_FACTOR = 1e3
-DISPLAY_TRIANGLES = 3000  # /hand/skin_marker: a decimated skin keeps 10 Hz markers light
+DISPLAY_TRIANGLES = 3000  # /hand/{side}/skin_marker: a decimated skin keeps 10 Hz markers light
 
 # The stages of SimRuntime.step in order (StepOutput.stages): targets (object copies extrapolated
 # into the Control; bone targets enter it on receipt, set_bone_targets), the solver's
@@ -93,6 +94,18 @@ def hand_sides(params):
     if len(set(sides)) != len(sides):
         raise ValueError(f"sim_node: parameter 'hands' names a hand twice: {sides}")
     return tuple(sides)
+
+
+def check_hand_measures(params):
+    """ParamError (naming both parameters) when `hand_measures: auto` meets two hands. The sizer
+    (hand_sizer) fits one hand from its side's tracker frames and a SimRuntime has one set of
+    measures; sizing each hand apart would rebuild the two-hand solver twice, mid-run. Two hands
+    take 'default' or a measures file (`softhand calibrate`)."""
+    sides = hand_sides(params)
+    if params["hand_measures"] == "auto" and len(sides) > 1:
+        raise ParamError(f"sim_node: parameter 'hand_measures' = 'auto' sizes one hand, but parameter 'hands' = "
+                         f"{list(sides)} simulates two: set hand_measures to 'default' or a measures file "
+                         f"(`softhand calibrate`), or simulate one hand")
 
 
 def _pose_transform(target, rest):

@@ -1,10 +1,15 @@
 """sim_node: the full soft hand simulation at a fixed rate (paper Sect. 3.1–3.5), thin over SimRuntime.
 
-Subscribes /hand/intermediate_bones (bone targets, Sect. 3.6) and /world/object_states (engine
-copies, Sect. 3.7). Publishes /hand/bones, /hand/object_states, /hand/skin_vertices,
-/hand/skin_mesh (once, transient local), /hand/skin_marker, /hand/contacts, /hand/contact_markers
-(force arrows, at the skin marker rate), /diagnostics, and /tf (bone frames) + /tf_static (ground,
-static objects) when tf2_msgs is built (ros/tf.py).
+One node simulates the hands of its `hands` parameter ([right] by default, [left], or [right,
+left]: one model, one solve, runtime.py). For each simulated side it subscribes
+/hand/{side}/intermediate_bones (bone targets, Sect. 3.6) and publishes /hand/{side}/bones,
+/hand/{side}/skin_vertices (on demand), /hand/{side}/skin_mesh (transient local, once per hand
+model, when the hand enters) and /hand/{side}/skin_marker (topics.py); a hand that has not had a
+target yet publishes nothing on them. Shared: it subscribes /world/object_states (engine copies,
+Sect. 3.7) and publishes /hand/object_states, /hand/contacts (both hands, `hand` field),
+/hand/contact_markers (force arrows, at the skin marker rate), /diagnostics, and /tf (each
+simulated hand's bone frames `{side}_{bone}`) + /tf_static (ground, static objects) when
+tf2_msgs is built (ros/tf.py). A one-hand node does per step exactly the one hand's work.
 All physics lives in softhand_sim.runtime; this file converts messages and owns timers.
 
 /diagnostics also splits the tick into its stages (issue #20), rolling p50/p99 over DIAG_WINDOW
@@ -35,11 +40,12 @@ from softhand_sim.ros.common import LATCHED_QOS, LATEST_QOS, PUB_QOS, SENSOR_QOS
 from softhand_sim.ros.params import declare_node_params
 from softhand_sim.ros.tf import TfBroadcaster
 from softhand_sim.timing import StepStats
+from softhand_sim.topics import hand_topic
 
 NODE_NAME = "sim_node"
 DIAG_WINDOW = 1000  # steps in the /diagnostics step-time and CG statistics
 REJECT_LOG_PERIOD = 2.0  # [s] at most one log line per rejection reason per period
-TARGET_GAP_S = 0.25  # [s] /hand/intermediate_bones silent this long: a gap (lost link, stopped tracker)
+TARGET_GAP_S = 0.25  # [s] /hand/{side}/intermediate_bones silent this long: a gap (lost link, stopped tracker)
 NODE_STAGES = ("messages", "publish")  # the tick's stages after SimRuntime.step (module docstring)
 
 
@@ -52,14 +58,44 @@ def build_parser():
     return argparse.ArgumentParser(
         prog="sim_node",
         description="softhand full simulation: skeleton + nonlinear FEM tissue + SDF contact + grasped "
-                    "objects, one Newton step and PCG per step at sim_rate. Subscribes "
-                    "/hand/intermediate_bones and /world/object_states; publishes /hand/bones, "
-                    "/hand/object_states, /hand/skin_vertices, /hand/skin_mesh, /hand/skin_marker, "
-                    "/hand/contacts and /diagnostics. Parameters (defaults in config/softhand.yaml, "
-                    "list with `softhand params sim_node`) are set with --ros-args -p key:=value or "
-                    "--params-file FILE.",
-        epilog="example: softhand-sim --ros-args -p sim_rate:=60.0 -p mesh:=coarse",
+                    "objects, one Newton step and PCG per step at sim_rate, for the hands of parameter "
+                    "`hands` in one solve. Per simulated side: subscribes /hand/{side}/intermediate_bones; "
+                    "publishes /hand/{side}/bones, skin_vertices, skin_mesh and skin_marker. Shared: "
+                    "subscribes /world/object_states; publishes /hand/object_states, /hand/contacts, "
+                    "/hand/contact_markers, /tf and /diagnostics. Parameters (defaults in "
+                    "config/softhand.yaml, list with `softhand params sim_node`) are set with --ros-args "
+                    "-p key:=value or --params-file FILE.",
+        epilog="example: softhand-sim --ros-args -p sim_rate:=60.0 -p \"hands:=[right, left]\"",
     )
+
+
+class HandTopics:
+    """One simulated hand's topics (/hand/{side}/...) and its input bookkeeping."""
+
+    def __init__(self, node, side, code):
+        self.side = side
+        self.bones = node.create_publisher(PoseArray, hand_topic(side, "bones"), PUB_QOS)
+        self.skin = node.create_publisher(PointCloud2, hand_topic(side, "skin_vertices"), PUB_QOS)
+        self.mesh = node.create_publisher(Mesh, hand_topic(side, "skin_mesh"), LATCHED_QOS)
+        self.marker = node.create_publisher(Marker, hand_topic(side, "skin_marker"), PUB_QOS)
+        # numpy-built CDR: 10x faster than rclpy's; marker id = the side's code, so two hands in
+        # one viewer never replace each other's skin
+        self.marker_serializer = rm.TriangleMarkerSerializer(marker_id=code)
+        self.mesh_bytes = None  # the serialized rest mesh of the current hand model, sent when the hand enters
+        self.mesh_sent = False
+        self.last_skin = -np.inf
+        self.last_target_rx, self.target_gaps = math.inf, 0  # inf: the first target is no gap
+        self.target_delay_ms = StepStats(window=DIAG_WINDOW)  # [ms] receipt - stamp of the targets
+
+    def new_model(self, runtime):
+        """Serialize the skin rest mesh of `runtime`'s hand (again after hand_measures auto swapped
+        it), now rather than in the tick where the hand enters (~0.1 s of rclpy for 23k triangles)."""
+        from rclpy.serialization import serialize_message
+        self.mesh_bytes = serialize_message(rm.mesh_from_numpy(*runtime.skin_rest_mesh(hand=self.side)))
+        self.mesh_sent = False
+
+    def target_age_s(self):
+        return time.monotonic() - self.last_target_rx if math.isfinite(self.last_target_rx) else -1.0
 
 
 class SimNode(Node):
@@ -68,8 +104,9 @@ class SimNode(Node):
     def __init__(self):
         super().__init__(NODE_NAME)
         self.params = declare_node_params(self, NODE_NAME)  # ParamError: run_node reports it, exit 1
-        from softhand_sim.runtime import STAGES, SimRuntime  # heavy: numba kernels, hand model
+        from softhand_sim.runtime import STAGES, SimRuntime, check_hand_measures  # heavy: numba kernels, hand model
 
+        check_hand_measures(self.params)  # ParamError: auto sizes one hand only
         log = self.get_logger()
         log.info("building the hand model and solver (cached after the first run)...")
         t0 = time.monotonic()
@@ -91,49 +128,49 @@ class SimNode(Node):
         self.tick_ms = StepStats(window=DIAG_WINDOW)  # [ms] step + messages + publishing
         self.stage_ms = {name: StepStats(window=DIAG_WINDOW) for name in (*STAGES, *NODE_STAGES)}
         self.last_guard_warning = ""
-        self.last_target_rx, self.target_gaps = math.inf, 0  # inf: the first target is no gap
-        self.target_delay_ms = StepStats(window=DIAG_WINDOW)  # [ms] receipt - stamp of the targets
-        self.pub_bones = self.create_publisher(PoseArray, "/hand/bones", PUB_QOS)
+        self.target_delay_ms = StepStats(window=DIAG_WINDOW)  # [ms] receipt - stamp, every hand's targets
+        from softhand_sim.physics.hands import HAND_CODE
+        self.hand_topics = [HandTopics(self, side, HAND_CODE[side]) for side in self.runtime.hands]
+        for hand in self.hand_topics:
+            hand.new_model(self.runtime)
+            self.create_subscription(PoseArray, hand_topic(hand.side, "intermediate_bones"),
+                                     lambda msg, hand=hand: self.on_bones(msg, hand), LATEST_QOS)
         self.pub_objects = self.create_publisher(MultiDOFJointTrajectory, "/hand/object_states", PUB_QOS)
-        self.pub_skin = self.create_publisher(PointCloud2, "/hand/skin_vertices", PUB_QOS)
-        self.pub_mesh = self.create_publisher(Mesh, "/hand/skin_mesh", LATCHED_QOS)
-        self.pub_marker = self.create_publisher(Marker, "/hand/skin_marker", PUB_QOS)
         self.pub_contacts = self.create_publisher(PointCloud2, "/hand/contacts", PUB_QOS)
         self.pub_contact_markers = self.create_publisher(MarkerArray, CONTACT_MARKERS_TOPIC, PUB_QOS)  # viewers
-        self.create_subscription(PoseArray, "/hand/intermediate_bones", self.on_bones, LATEST_QOS)
         self.create_subscription(MultiDOFJointTrajectory, "/world/object_states", self.on_objects, LATEST_QOS)
-        verts, tris = self.runtime.skin_rest_mesh()
-        self.pub_mesh.publish(rm.mesh_from_numpy(verts, tris))
         self.diag = DiagnosticsPublisher(self, self.collect_diagnostics, 1.0 / self.params["diagnostics_rate"])
         self.timer = self.create_timer(self.dt, self.on_timer)
         self.sizer = None
         if self.params["hand_measures"] == "auto":
             self.sizer = self.start_hand_sizer()
         self.marker_period = 1.0 / self.params["skin_marker_rate"]
-        self.marker_serializer = rm.TriangleMarkerSerializer()  # numpy-built CDR: 10x faster than rclpy's
         self.last_marker = -np.inf
         self.contact_serializer = ContactMarkerSerializer()  # force arrows, numpy-built CDR like the skin's
-        # --- TF (ros/tf.py): bones on /tf each step, ground and static objects on /tf_static;
-        # without tf2_msgs in the venv it logs one warning and publishes nothing.
-        self.tf = TfBroadcaster(self, self.params["hand_side"], self.runtime.scene, PUB_QOS, LATCHED_QOS)
+        # --- TF (ros/tf.py): each simulated hand's bones on /tf each step, ground and static objects
+        # on /tf_static; without tf2_msgs in the venv it logs one warning and publishes nothing.
+        self.tf = TfBroadcaster(self, self.runtime.hands, self.runtime.scene, PUB_QOS, LATCHED_QOS)
         rate = self.params["skin_vertices_rate"]
-        self.skin_period, self.last_skin = (1.0 / rate if rate > 0 else 0.0), -np.inf
+        self.skin_period = 1.0 / rate if rate > 0 else 0.0
 
     # -------------------------------------------------------------------- inputs
     def reject(self, reason, detail):
         self.rejections.log(reason, detail)
 
-    def on_bones(self, msg):
+    def on_bones(self, msg, hand):
         now = time.monotonic()
-        if now - self.last_target_rx > TARGET_GAP_S:  # counted when the targets come back
-            self.target_gaps += 1
-        self.last_target_rx = now
-        self.target_delay_ms.add(1e3 * (self.now_s() - rm.stamp_to_seconds(msg.header.stamp)))  # clocks in sync
+        if now - hand.last_target_rx > TARGET_GAP_S:  # counted when the targets come back
+            hand.target_gaps += 1
+        hand.last_target_rx = now
+        delay = 1e3 * (self.now_s() - rm.stamp_to_seconds(msg.header.stamp))  # clocks in sync
+        self.target_delay_ms.add(delay)
+        if len(self.hand_topics) > 1:
+            hand.target_delay_ms.add(delay)
         try:
             poses = rm.pose_array_to_numpy(msg)
-            self.runtime.set_bone_targets(poses, rm.stamp_to_seconds(msg.header.stamp))
+            self.runtime.set_bone_targets(poses, rm.stamp_to_seconds(msg.header.stamp), hand=hand.side)
         except ValueError as exc:
-            self.reject("intermediate_bones", exc)
+            self.reject("intermediate_bones", f"{hand.side}: {exc}")
 
     def on_objects(self, msg):
         try:
@@ -150,7 +187,8 @@ class SimNode(Node):
     # -------------------------------------------------------------------- hand_measures: auto
     def start_hand_sizer(self):
         """The first tracked second sizes the hand (softhand_sim.hand_sizer, in a worker thread);
-        nothing is simulated until the fitted hand replaces the default one (poll_hand_sizer)."""
+        nothing is simulated until the fitted hand replaces the default one (poll_hand_sizer).
+        One hand only (runtime.check_hand_measures): it listens to that side's tracker topic."""
         from softhand_sim.hand_sizer import HandSizer, tracker_topic
         from softhand_sim.runtime import SimRuntime
 
@@ -159,9 +197,11 @@ class SimNode(Node):
             runtime.warm_up(self.dt)
             return runtime
 
-        sizer = HandSizer(make, side=self.params["hand_side"])
-        self.create_subscription(PoseArray, tracker_topic(self.params["hand_side"]), self.on_tracker, SENSOR_QOS)
-        self.get_logger().info("hand_measures auto: sizing the hand on the first tracked second")
+        side = self.runtime.hands[0]
+        sizer = HandSizer(make, side=side)
+        self.create_subscription(PoseArray, tracker_topic(side), self.on_tracker, SENSOR_QOS)
+        self.get_logger().info(f"hand_measures auto: sizing the {side} hand on the first tracked second "
+                               f"of {tracker_topic(side)}")
         return sizer
 
     def on_tracker(self, msg):
@@ -174,7 +214,8 @@ class SimNode(Node):
         runtime = self.sizer.poll()
         if runtime is not None:
             self.runtime = handover(self.runtime, runtime)
-            self.pub_mesh.publish(rm.mesh_from_numpy(*runtime.skin_rest_mesh()))
+            for hand in self.hand_topics:  # the new hand's mesh goes out when it enters
+                hand.new_model(runtime)
             self.get_logger().info(f"hand_measures auto: {self.sizer.describe()}")
         elif self.sizer.state == "failed":
             self.get_logger().error(f"hand_measures auto: {self.sizer.describe()}", once=True)
@@ -195,28 +236,40 @@ class SimNode(Node):
         self.cg_iters.add(out.stats.cg_iters)
         # build every message of the tick first, then publish them (the two stages timed apart)
         stamp = rm.stamp_from_seconds(out.t)  # the time of the state: the end of the step
-        bones = rm.pose_array_from_numpy(out.bone_poses, stamp)
-        rest = []
+        marker_tick = t - self.last_marker >= self.marker_period - 1e-6
+        if marker_tick:
+            self.last_marker = t
+        skin_tick = self.params["publish_skin_vertices"]
+        bones, rest = [], []
+        for hand in self.hand_topics:
+            ho = out.hands[hand.side]
+            if not ho.entered:  # no target yet: this hand publishes nothing
+                continue
+            bones.append((hand, ho.bone_poses, rm.pose_array_from_numpy(ho.bone_poses, stamp)))
+            if not hand.mesh_sent:  # once per hand model, latched
+                hand.mesh_sent = True
+                rest.append((hand.mesh, hand.mesh_bytes))
+            # on demand (nobody subscribed: no 142 kB message built) and at most at skin_vertices_rate
+            if (skin_tick and t - hand.last_skin >= self.skin_period - 1e-6
+                    and hand.skin.get_subscription_count()):
+                hand.last_skin = t
+                rest.append((hand.skin, rm.xyz_cloud_from_numpy(ho.skin_vertices, stamp)))
+            if marker_tick:
+                verts, tris = self.runtime.display_mesh(out, hand=hand.side)
+                rest.append((hand.marker, hand.marker_serializer.serialize(verts, tris, stamp)))
         if len(out.object_names):
             rest.append((self.pub_objects, rm.object_states_from_numpy(
                 out.object_names, out.object_poses, out.object_twists, out.object_accels, stamp)))
-        # on demand (nobody subscribed: no 142 kB message built) and at most at skin_vertices_rate
-        if (self.params["publish_skin_vertices"] and t - self.last_skin >= self.skin_period - 1e-6
-                and self.pub_skin.get_subscription_count()):
-            self.last_skin = t
-            rest.append((self.pub_skin, rm.xyz_cloud_from_numpy(out.skin_vertices, stamp)))
         c = out.contacts
         rest.append((self.pub_contacts, rm.contacts_cloud_from_numpy(
-            c["points"], c["normals"], c["forces"], c["objects"], c["slip"], stamp)))
-        if t - self.last_marker >= self.marker_period - 1e-6:
-            self.last_marker = t
-            verts, tris = self.runtime.display_mesh(out)
-            rest.append((self.pub_marker, self.marker_serializer.serialize(verts, tris, stamp)))
+            c["points"], c["normals"], c["forces"], c["objects"], c["slip"], stamp, hand=c["hand"])))
+        if marker_tick:
             rest.append((self.pub_contact_markers,
                          self.contact_serializer.serialize(c["points"], c["forces"], c["slip"], stamp)))
         t2 = time.perf_counter()
-        self.pub_bones.publish(bones)
-        self.tf.publish_bones(out.bone_poses, stamp)  # TF: the same poses and stamp as /hand/bones
+        for hand, poses, msg in bones:
+            hand.bones.publish(msg)
+            self.tf.publish_bones(poses, stamp, hand.side)  # TF: the same poses and stamp as /hand/{side}/bones
         for pub, msg in rest:
             pub.publish(msg)
         if out.warning:
@@ -234,6 +287,21 @@ class SimNode(Node):
             out[f"stage_{name}_ms_p50"], out[f"stage_{name}_ms_p99"] = p50_p99(stats)
         return out
 
+    def target_diagnostics(self):
+        """target_gaps / target_delay_ms_p50 / target_age_s over every hand (the stalest hand's
+        age), and with two hands each side's, prefixed `{side}_`, with `{side}_entered`."""
+        ages = [h.target_age_s() for h in self.hand_topics]
+        received = [a for a in ages if a >= 0.0]
+        out = {"target_gaps": sum(h.target_gaps for h in self.hand_topics),
+               "target_delay_ms_p50": self.target_delay_ms.median(),
+               "target_age_s": max(received) if received else -1.0}
+        if len(self.hand_topics) > 1:
+            for hand, age, entered in zip(self.hand_topics, ages, self.runtime.hand_placed):
+                out.update({f"{hand.side}_entered": bool(entered), f"{hand.side}_target_gaps": hand.target_gaps,
+                            f"{hand.side}_target_delay_ms_p50": hand.target_delay_ms.median(),
+                            f"{hand.side}_target_age_s": age})
+        return out
+
     def collect_diagnostics(self):
         rate = self.meter.stats()
         values = {
@@ -245,14 +313,14 @@ class SimNode(Node):
             "tick_ms_p50": self.tick_ms.median(), "tick_ms_p99": self.tick_ms.percentile(99),
             **self.stage_diagnostics(),
             "overruns": self.step_ms.over_budget,
-            "target_gaps": self.target_gaps, "target_delay_ms_p50": self.target_delay_ms.median(),
-            "target_age_s": time.monotonic() - self.last_target_rx if math.isfinite(self.last_target_rx) else -1.0,
+            **self.target_diagnostics(),
             **self.runtime.diagnostics(),
             **(self.sizer.diagnostics() if self.sizer is not None and self.sizer.state != "ready" else {}),
             **{f"rejected_{k}": v for k, v in self.rejections.counts.items()},
         }
         values["last_guard_warning"] = self.last_guard_warning or "-"
-        message = "simulating" if self.step_ms.count else "waiting for /hand/intermediate_bones"
+        waiting = " and ".join(hand_topic(h.side, "intermediate_bones") for h in self.hand_topics)
+        message = "simulating" if self.step_ms.count else f"waiting for {waiting}"
         if self.last_guard_warning:  # the latest divergence stays visible in the status line
             message = f"{message}; {values['rejected_steps']} step(s) rejected, last: {self.last_guard_warning}"
         level = "warn" if values.get("rejected_steps", 0) else "ok"

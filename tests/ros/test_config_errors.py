@@ -32,6 +32,9 @@ CASES = [
     (["softhand-sim"], "mesh:=ultra", ["mesh", "ultra"]),
     (["softhand-sim"], "scene_file:=/nonexistent/scene.yaml", ["scene_file", "/nonexistent/scene.yaml"]),
     (["softhand-sim"], "scene_file:={mesh_scene}", ["scene_file", "cup", "missing_cup.obj"]),
+    # two ROS argument blocks: both parameters of the refused combination
+    (["softhand-sim", "--ros-args", "-p", "hands:=[right, left]", "--"], "hand_measures:=auto",
+     ["hand_measures", "auto", "hands", "['right', 'left']"]),
     (["softhand-world"], "bogus_key:=1", ["bogus_key", "1"]),
     (["softhand-world"], "coupling_kx:=0.0", ["coupling_kx", "0.0"]),
     (["softhand-world"], "coupling_ktheta:=-70.0", ["coupling_ktheta", "-70.0"]),

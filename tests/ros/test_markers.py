@@ -120,13 +120,15 @@ def _panel_ids(node):
 
 
 def test_foxglove_layout_names_only_softhand_topics(repo_root):
-    """The layout file: every panel of the tree is configured; the 3D panel shows the skin, scene and
-    contact markers; every plotted path starts with a softhand topic; the force plot reads the label."""
+    """The layout file: every panel of the tree is configured; the 3D panel shows both hands' skin
+    markers, the bone frames (/tf), the scene and contact markers; every plotted path starts with a
+    softhand topic; the force plot reads the label."""
     layout = _layout(repo_root)
     assert sorted(_panel_ids(layout["layout"])) == sorted(layout["configById"])
     three_d = next(v for k, v in layout["configById"].items() if k.startswith("3D!"))
     shown = {t for t, s in three_d["topics"].items() if s.get("visible")}
-    assert shown == {"/hand/skin_marker", "/world/markers", mk.CONTACT_MARKERS_TOPIC}
+    assert shown == {"/hand/right/skin_marker", "/hand/left/skin_marker", "/tf", "/world/markers",
+                     mk.CONTACT_MARKERS_TOPIC}
     assert set(three_d["topics"]) <= set(TOPIC_TYPES)
     paths = [p["value"] for k, v in layout["configById"].items() if k.startswith("Plot!") for p in v["paths"]]
     assert paths and all(p.split(".")[0] in TOPIC_TYPES for p in paths)

@@ -26,7 +26,8 @@ from trajectory_msgs.msg import MultiDOFJointTrajectory
 
 from tests.support.rosproc import RosGraph
 from softhand_sim.ros import msgs as rm
-from softhand_sim.record_node import header_stamp_ns
+from softhand_sim.record_node import ADAPTIVE_TOPICS, DEFAULT_TOPICS, header_stamp_ns
+from softhand_sim.topics import LEGACY_TRACKER, TOPIC_TYPES
 from softhand_sim.ros.bagio import MCAP_MAGIC, BagError, deserialize, read_recording, read_topic, recover_mcap
 
 pytestmark = pytest.mark.ros
@@ -74,6 +75,14 @@ def test_header_stamp_read_from_raw_cdr():
     assert header_stamp_ns(serialize_message(msg)) == 1_234_567_890_123
 
 
+def test_default_topics_are_both_hands_but_the_skin_clouds():
+    """By default every contract topic of both sides is recorded but the two skin_vertices clouds;
+    the tracker topics of both sides and the legacy single-hand one take the publisher's QoS."""
+    assert set(DEFAULT_TOPICS) == set(TOPIC_TYPES) - {"/hand/right/skin_vertices", "/hand/left/skin_vertices"}
+    assert {"/hand/right/bones", "/hand/left/bones", "/hand/left/skin_mesh", "/tf"} <= set(DEFAULT_TOPICS)
+    assert ADAPTIVE_TOPICS == {"/tracker/right/hand_joints", "/tracker/left/hand_joints", LEGACY_TRACKER}
+
+
 def _messages(i):
     """One message per recorded topic for sequence number i (i is in each payload)."""
     rng = np.random.default_rng(i)
@@ -85,11 +94,11 @@ def _messages(i):
     contacts = rm.contacts_cloud_from_numpy(rng.normal(size=(3, 3)), rng.normal(size=(3, 3)),
                                             rng.normal(size=(3, 3)), [i, i, i], [0, 1, 0], stamp)
     diag = rm.diagnostic_array([rm.diagnostic_status("test", {"i": i})], stamp)
-    return {"/hand/bones": rm.pose_array_from_numpy(poses, stamp), "/hand/object_states": objs,
+    return {"/hand/right/bones": rm.pose_array_from_numpy(poses, stamp), "/hand/object_states": objs,
             "/hand/contacts": contacts, "/diagnostics": diag}
 
 
-TYPES = {"/hand/bones": PoseArray, "/hand/object_states": MultiDOFJointTrajectory,
+TYPES = {"/hand/right/bones": PoseArray, "/hand/object_states": MultiDOFJointTrajectory,
          "/hand/contacts": PointCloud2, "/diagnostics": DiagnosticArray}
 
 
@@ -101,10 +110,10 @@ def test_record_exact_counts_and_schemas(ros_env, tmp_path, sig):
     n = 40
     out = tmp_path / "rec"
     with RosGraph(ros_env) as g:
-        mesh_pub = g.publisher("/hand/skin_mesh", Mesh, LATCHED)
+        mesh_pub = g.publisher("/hand/right/skin_mesh", Mesh, LATCHED)
         mesh_pub.publish(rm.mesh_from_numpy(np.eye(3), [[0, 1, 2]]))
         pubs = {t: g.publisher(t, cls, DEEP) for t, cls in TYPES.items()}
-        proc = g.start(["softhand-record", "-o", str(out), "--topics", *TYPES, "/hand/skin_mesh"])
+        proc = g.start(["softhand-record", "-o", str(out), "--topics", *TYPES, "/hand/right/skin_mesh"])
         for pub in pubs.values():
             g.wait_matched(pub, proc=proc)
         g.wait_matched(mesh_pub, proc=proc)
@@ -119,9 +128,9 @@ def test_record_exact_counts_and_schemas(ros_env, tmp_path, sig):
     # rosbags: counts and content order
     with Reader(out) as reader:
         counts = {c.topic: c.msgcount for c in reader.connections}
-        assert counts == {**{t: n for t in TYPES}, "/hand/skin_mesh": 1}
+        assert counts == {**{t: n for t in TYPES}, "/hand/right/skin_mesh": 1}
     assert assert_well_formed_mcap(out) == counts
-    bones = read_topic(out, "/hand/bones", "geometry_msgs/msg/PoseArray")
+    bones = read_topic(out, "/hand/right/bones", "geometry_msgs/msg/PoseArray")
     xs = [rm.pose_array_to_numpy(deserialize(raw, bones.msgtype))[0, 0] for raw in bones.payloads]
     assert sorted(xs) == list(range(n))
     # mcap reader + mcap_ros2 decoder: every channel has a ros2msg schema and every message decodes
@@ -135,7 +144,7 @@ def test_record_exact_counts_and_schemas(ros_env, tmp_path, sig):
         for schema, channel, _message, msg in reader.iter_decoded_messages():
             decoded.setdefault(channel.topic, []).append(msg)
     assert {t: len(v) for t, v in decoded.items()} == counts
-    assert list(decoded["/hand/skin_mesh"][0].triangles[0].vertex_indices) == [0, 1, 2]
+    assert list(decoded["/hand/right/skin_mesh"][0].triangles[0].vertex_indices) == [0, 1, 2]
     assert sorted(m.points[0].transforms[0].translation.x for m in decoded["/hand/object_states"]) == list(range(n))
 
 
@@ -146,19 +155,19 @@ INFINITE = {"sec": 9223372036, "nsec": 854775807}  # RMW_DURATION_INFINITE as ro
 
 def test_offered_qos_type_hash_and_distro_like_rosbag2(ros_env, tmp_path):
     """metadata.yaml and the mcap channels hold what rosbag2 Jazzy writes: per topic the offered QoS of
-    its publishers -- a latched mesh published before the recorder started, /hand/bones whose publisher
+    its publishers -- a latched mesh published before the recorder started, /hand/right/bones whose publisher
     appears after the recorder subscribed, a best-effort topic found by discovery -- or, for a topic
     without publishers, the INTERFACE.md contract QoS (listed with 0 messages); the type hash the
     publishers announce; ros_distro jazzy; and the same profiles in both places."""
     out = tmp_path / "rec"
-    topics = ["/hand/skin_mesh", "/hand/bones", "/custom", "/world/object_states"]
+    topics = ["/hand/right/skin_mesh", "/hand/right/bones", "/custom", "/world/object_states"]
     with RosGraph(ros_env) as g:
-        mesh_pub = g.publisher("/hand/skin_mesh", Mesh, LATCHED)
+        mesh_pub = g.publisher("/hand/right/skin_mesh", Mesh, LATCHED)
         mesh_pub.publish(rm.mesh_from_numpy(np.eye(3), [[0, 1, 2]]))
         custom_pub = g.publisher("/custom", String, BEST_EFFORT)
         proc = g.start(["softhand-record", "-o", str(out), "--topics", *topics])
         g.wait_until(lambda: "subscribed /custom" in proc.output(), 30, "recorder subscription", proc)
-        bones_pub = g.publisher("/hand/bones", PoseArray, DEEP)  # after the recorder subscribed
+        bones_pub = g.publisher("/hand/right/bones", PoseArray, DEEP)  # after the recorder subscribed
         for pub in (mesh_pub, custom_pub, bones_pub):
             g.wait_matched(pub, proc=proc)
         for i in range(5):
@@ -167,7 +176,7 @@ def test_offered_qos_type_hash_and_distro_like_rosbag2(ros_env, tmp_path):
         assert bones_pub.wait_for_all_acked(Duration(seconds=10))
         g.wait_until(lambda: proc.output().count("offered QoS") >= 3, 10, "three channels opened", proc)
         live_hash = {t: str(g.node.get_publishers_info_by_topic(t)[0].topic_type_hash)
-                     for t in ("/hand/skin_mesh", "/hand/bones", "/custom")}
+                     for t in ("/hand/right/skin_mesh", "/hand/right/bones", "/custom")}
         assert proc.stop(signal.SIGINT) == 0, proc.output()
     assert "Traceback" not in proc.output()
     info = YAML(typ="safe").load((out / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
@@ -179,12 +188,12 @@ def test_offered_qos_type_hash_and_distro_like_rosbag2(ros_env, tmp_path):
     def policies(topic):
         return [(q["reliability"], q["durability"]) for q in meta[topic]["topic_metadata"]["offered_qos_profiles"]]
 
-    assert policies("/hand/skin_mesh") == [("reliable", "transient_local")]
-    assert policies("/hand/bones") == [("reliable", "volatile")]
+    assert policies("/hand/right/skin_mesh") == [("reliable", "transient_local")]
+    assert policies("/hand/right/bones") == [("reliable", "volatile")]
     assert policies("/custom") == [("best_effort", "volatile")]
     assert policies("/world/object_states") == [("reliable", "volatile")]
     # discovered offers: what discovery announces (no history/depth), infinite durations as rmw's
-    mesh_qos = meta["/hand/skin_mesh"]["topic_metadata"]["offered_qos_profiles"][0]
+    mesh_qos = meta["/hand/right/skin_mesh"]["topic_metadata"]["offered_qos_profiles"][0]
     assert mesh_qos == {"history": "unknown", "depth": 0, "reliability": "reliable", "durability": "transient_local",
                         "deadline": INFINITE, "lifespan": INFINITE, "liveliness": "automatic",
                         "liveliness_lease_duration": INFINITE, "avoid_ros_namespace_conventions": False}
@@ -196,7 +205,7 @@ def test_offered_qos_type_hash_and_distro_like_rosbag2(ros_env, tmp_path):
     assert meta["/world/object_states"]["topic_metadata"]["type_description_hash"].startswith("RIHS01_")
     # the mcap file: same profiles and hashes in the channel metadata, distro in its rosbag2 record
     counts = assert_well_formed_mcap(out)
-    assert counts["/hand/skin_mesh"] == 1 and counts["/hand/bones"] == 5 and counts["/world/object_states"] == 0
+    assert counts["/hand/right/skin_mesh"] == 1 and counts["/hand/right/bones"] == 5 and counts["/world/object_states"] == 0
     with open(next(out.glob("*.mcap")), "rb") as f:
         reader = make_reader(f)
         channels = reader.get_summary().channels.values()
@@ -208,7 +217,7 @@ def test_offered_qos_type_hash_and_distro_like_rosbag2(ros_env, tmp_path):
     assert YAML(typ="safe").load(records["rosbag2"]["serialized_metadata"])["ros_distro"] == "jazzy"
     # rosbags reads the profiles back
     rec = read_recording(out)
-    assert rec.topics["/hand/skin_mesh"].offered_qos[0].durability.name == "TRANSIENT_LOCAL"
+    assert rec.topics["/hand/right/skin_mesh"].offered_qos[0].durability.name == "TRANSIENT_LOCAL"
 
 
 @pytest.mark.parametrize("flush_period", [0.3, 3600.0], ids=["periodic_flush", "no_flush"])
@@ -220,8 +229,8 @@ def test_sigkill_leaves_a_recoverable_bag(ros_env, tmp_path, flush_period):
     out = tmp_path / "rec"
     cloud = rm.xyz_cloud_from_numpy(np.random.default_rng(0).normal(size=(4000, 3)), 0)  # 48 kB each
     with RosGraph(ros_env) as g:
-        pub = g.publisher("/hand/skin_vertices", PointCloud2, DEEP)
-        proc = g.start(["softhand-record", "-o", str(out), "--topics", "/hand/skin_vertices",
+        pub = g.publisher("/hand/right/skin_vertices", PointCloud2, DEEP)
+        proc = g.start(["softhand-record", "-o", str(out), "--topics", "/hand/right/skin_vertices",
                         "--ros-args", "-p", f"flush_period:={flush_period}"])
         g.wait_matched(pub, proc=proc)
         for i in range(n):
@@ -232,7 +241,7 @@ def test_sigkill_leaves_a_recoverable_bag(ros_env, tmp_path, flush_period):
         assert proc.stop(signal.SIGKILL) == -signal.SIGKILL
     assert not (out / "metadata.yaml").exists()
     with pytest.raises(BagError, match="no metadata.yaml") as err:
-        read_topic(out, "/hand/skin_vertices", "sensor_msgs/msg/PointCloud2")
+        read_topic(out, "/hand/right/skin_vertices", "sensor_msgs/msg/PointCloud2")
     assert f"python -m softhand_sim.ros.bagio recover {next(out.glob('*.mcap'))}" in str(err.value)
     recovered = recover_mcap(next(out.glob("*.mcap")), tmp_path / "fixed")
     per_chunk = 2**20 // len(serialize_message(cloud)) + 1
@@ -241,8 +250,8 @@ def test_sigkill_leaves_a_recoverable_bag(ros_env, tmp_path, flush_period):
     else:
         assert recovered == (n // per_chunk) * per_chunk  # whole 1 MiB chunks only
     if recovered:
-        assert assert_well_formed_mcap(tmp_path / "fixed") == {"/hand/skin_vertices": recovered}
-        data = read_topic(tmp_path / "fixed", "/hand/skin_vertices", "sensor_msgs/msg/PointCloud2")
+        assert assert_well_formed_mcap(tmp_path / "fixed") == {"/hand/right/skin_vertices": recovered}
+        data = read_topic(tmp_path / "fixed", "/hand/right/skin_vertices", "sensor_msgs/msg/PointCloud2")
         assert [header_stamp_ns(p) for p in data.payloads] == list(range(recovered))
 
 
@@ -255,13 +264,14 @@ BURST_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=BURST, reliability
 
 # Timing over real DDS between processes on a shared 2-core machine: one retry absorbs a stall.
 @pytest.mark.flaky(reruns=1, reruns_delay=2)
-@pytest.mark.parametrize("sig,topic", [(signal.SIGTERM, "/hand/bones"), (signal.SIGINT, "/tracker/hand_joints")],
-                         ids=["SIGTERM-bones", "SIGINT-tracker"])
+@pytest.mark.parametrize("sig,topic", [(signal.SIGTERM, "/hand/right/bones"), (signal.SIGINT, "/tracker/left/hand_joints"),
+                                       (signal.SIGINT, LEGACY_TRACKER)],
+                         ids=["SIGTERM-bones", "SIGINT-tracker", "SIGINT-legacy-tracker"])
 def test_burst_then_signal_loses_nothing(ros_env, tmp_path, sig, topic):
     """3,000 messages published as fast as possible (several thousand per second), the signal sent
     the moment the last is acknowledged: the bag holds exactly 3,000, each stamp once, in order.
-    /tracker/hand_joints too: the recorder takes its reliable publisher's QoS (a best-effort reader
-    dropped frames under load)."""
+    /tracker/left/hand_joints and the legacy /tracker/hand_joints too: the recorder takes its reliable
+    publisher's QoS (a best-effort reader dropped frames under load)."""
     out = tmp_path / "rec"
     poses = np.tile([0, 0, 0, 0, 0, 0, 1.0], (16, 1))
     msgs = [rm.pose_array_from_numpy(poses, 10**9 + i) for i in range(BURST)]

@@ -1,6 +1,7 @@
 """TF (issue #22 point 1): sim_node's bone frames on /tf and fixed frames on /tf_static, heard by
-another process and recorded; a lookup in the recording agrees with /hand/bones; without tf2_msgs
-the build script fails cleanly and the nodes run on without TF, saying so once."""
+another process and recorded; a lookup in the recording agrees with /hand/right/bones; a one-hand
+node publishes nothing of the other side; without tf2_msgs the build script fails cleanly and the
+nodes run on without TF, saying so once. Two hands: tests/ros/test_sim_node_hands.py."""
 import os
 import subprocess
 import sys
@@ -11,6 +12,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 from geometry_msgs.msg import PoseArray
+from shape_msgs.msg import Mesh
+from visualization_msgs.msg import Marker
 from scipy.spatial.transform import Rotation
 
 from tests.support.rosproc import RosGraph, RosProc
@@ -36,7 +39,7 @@ def random_poses(n, seed):
 
 
 def test_bone_frame_names_follow_the_contract():
-    """`{side}_{bone}` in /hand/bones order: right_palm first, right_index_distal 7th (index 6)."""
+    """`{side}_{bone}` in /hand/{side}/bones order: right_palm first, right_index_distal 7th (index 6)."""
     frames = bone_frames("right")
     assert len(frames) == 16 and frames[0] == "right_palm" and frames[6] == "right_index_distal"
     assert bone_frames("left")[-1] == "left_little_distal"
@@ -101,20 +104,24 @@ def hover_targets(z=0.95):
 @pytest.mark.ros
 @pytest.mark.flaky(reruns=1, reruns_delay=2)  # real DDS timing on a shared 2-core machine
 def test_sim_node_tf_heard_and_recorded(ros_env, tmp_path):
-    """sim_node fed moving hover targets: this process hears /tf (16 frames `right_*`, parent world,
-    at the /hand/bones stamps and poses) and, subscribing late, /tf_static (ground, table: transient
-    local). record_node records both; in the recording, the distal index frame looked up from /tf
-    equals bone 6 of /hand/bones at the same stamp, and `table` from /tf_static its scene pose."""
+    """sim_node (one hand, the default right) fed moving hover targets: this process hears /tf (16
+    frames `right_*`, parent world, at the /hand/right/bones stamps and poses) and, subscribing late,
+    /tf_static (ground, table: transient local). record_node records both; in the recording, the
+    distal index frame looked up from /tf equals bone 6 of /hand/right/bones at the same stamp, and
+    `table` from /tf_static its scene pose. Nothing at all arrives on /hand/left/* (bones, skin
+    marker, latched skin mesh) while the right hand's mesh is latched."""
     targets = hover_targets()
     bag = tmp_path / "bag"
     with RosGraph(ros_env) as g:
         tf = g.listen("/tf", TFMessage, PUB_QOS)
-        bones = g.listen("/hand/bones", PoseArray, PUB_QOS)
-        pub = g.publisher("/hand/intermediate_bones", PoseArray)
-        rec = g.start(["softhand-record", "-o", str(bag), "--topics", "/hand/bones", "/tf", "/tf_static"])
+        bones = g.listen("/hand/right/bones", PoseArray, PUB_QOS)
+        left = {n: g.listen(f"/hand/left/{n}", ty, LATCHED_QOS if n == "skin_mesh" else PUB_QOS)
+                for n, ty in (("bones", PoseArray), ("skin_marker", Marker), ("skin_mesh", Mesh))}
+        pub = g.publisher("/hand/right/intermediate_bones", PoseArray)
+        rec = g.start(["softhand-record", "-o", str(bag), "--topics", "/hand/right/bones", "/tf", "/tf_static"])
         # the recorder subscribes before sim_node exists: sim_node is ready within ~1.5 s with the
         # kernels cached, sooner than the recorder starts, and then its first messages were missed
-        g.wait_until(lambda: all(f"subscribed {t}" in rec.output() for t in ("/hand/bones", "/tf", "/tf_static")),
+        g.wait_until(lambda: all(f"subscribed {t}" in rec.output() for t in ("/hand/right/bones", "/tf", "/tf_static")),
                      60, "recorder subscriptions", rec)
         sim = g.start(["softhand-sim"])
         g.wait_matched(pub, timeout=300, proc=sim)  # first run of a checkout: numba compiles
@@ -127,12 +134,15 @@ def test_sim_node_tf_heard_and_recorded(ros_env, tmp_path):
             time.sleep(0.02)
             g.wait_until(lambda: k < 1500, 1, "60 /tf messages", sim)
         static = g.listen("/tf_static", TFMessage, LATCHED_QOS)  # a late joiner
-        g.wait_until(lambda: len(static) >= 1, 10, "/tf_static (transient local)", sim)
+        mesh = g.listen("/hand/right/skin_mesh", Mesh, LATCHED_QOS)  # late too: latched
+        g.wait_until(lambda: len(static) >= 1 and len(mesh) >= 1, 10, "/tf_static, right skin_mesh (latched)", sim)
         time.sleep(0.5)
         assert sim.stop() == 0, sim.output()
         assert rec.stop() == 0, rec.output()
     out = sim.output()
     assert "tf2_msgs" not in out, out  # built: no warning
+    assert {n: len(c) for n, c in left.items()} == {"bones": 0, "skin_marker": 0, "skin_mesh": 0}
+    assert len(mesh) == 1 and len(mesh.msgs[0].triangles) > 1000
     span = tf.times[-1] - tf.times[0]
     print(f"/tf: {len(tf)} messages over {span:.2f} s = {(len(tf) - 1) / span:.1f} Hz heard in another process")
 
@@ -157,7 +167,7 @@ def test_sim_node_tf_heard_and_recorded(ros_env, tmp_path):
     static_msgs = [deserialize(raw, "tf2_msgs/msg/TFMessage") for _, topic, raw in rec_data.messages
                    if topic == "/tf_static"]
     recorded_bones = [deserialize(raw, "geometry_msgs/msg/PoseArray") for _, topic, raw in rec_data.messages
-                      if topic == "/hand/bones"]
+                      if topic == "/hand/right/bones"]
     assert len(tf_msgs) >= 60 and len(static_msgs) == 1
     tips = {}
     for m in tf_msgs:
@@ -243,4 +253,4 @@ def test_nodes_without_tf2_msgs_run_and_say_so_once(ros_env, tmp_path):
 
     with Reader(bag) as reader:  # nothing was published: the subscribed topics are listed, empty
         topics = {c.topic for c in reader.connections}
-    assert "/hand/bones" in topics and "/tf" not in topics and "/tf_static" not in topics
+    assert "/hand/right/bones" in topics and "/tf" not in topics and "/tf_static" not in topics

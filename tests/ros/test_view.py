@@ -17,13 +17,15 @@ from visualization_msgs.msg import Marker, MarkerArray
 
 from softhand_sim.ros import markers as mk
 from softhand_sim.ros import msgs as rm
+from softhand_sim.topics import HEAVY_TOPICS
 from tests.support.rosproc import RosGraph
 
 pytestmark = [pytest.mark.ros]
 
 SUBPROTOCOLS = ["foxglove.sdk.v1", "foxglove.websocket.v1"]
 MESSAGE_DATA = 0x01  # binary opcode: subscription id u32, log time u64, payload (little-endian)
-WANTED = {"/hand/skin_marker": Marker, "/world/markers": MarkerArray, mk.CONTACT_MARKERS_TOPIC: MarkerArray}
+WANTED = {"/hand/right/skin_marker": Marker, "/hand/left/skin_marker": Marker, "/world/markers": MarkerArray,
+          mk.CONTACT_MARKERS_TOPIC: MarkerArray}
 
 
 def _port_of(proc, graph, timeout=120.0):
@@ -51,9 +53,9 @@ def _listening_addresses(port):
 
 
 def test_view_serves_hand_scene_and_contacts_to_a_websocket_client(ros_env):
-    """The client sees one channel per softhand topic (cdr, ros2msg schema of the ROS type), subscribes
-    to the skin, scene and contact channels and decodes their messages to what was published; the
-    server listens on 127.0.0.1 only."""
+    """The client sees one channel per softhand topic (cdr, ros2msg schema of the ROS type) but the
+    heavy skin clouds, subscribes to both hands' skin, the scene and contact channels and decodes their
+    messages to what was published; the server listens on 127.0.0.1 only."""
     from websockets.sync.client import connect
 
     with RosGraph(ros_env) as g:
@@ -72,7 +74,8 @@ def test_view_serves_hand_scene_and_contacts_to_a_websocket_client(ros_env):
 
         def publish_all():
             stamp = time.time()
-            pubs["/hand/skin_marker"].publish(rm.triangle_marker(tri_v, tris, stamp))
+            pubs["/hand/right/skin_marker"].publish(rm.triangle_marker(tri_v, tris, stamp))
+            pubs["/hand/left/skin_marker"].publish(rm.triangle_marker(tri_v, tris[:1], stamp, marker_id=1))
             pubs["/world/markers"].publish(rm.scene_markers(table, stamp, ground_height=0.0))
             pubs[mk.CONTACT_MARKERS_TOPIC].publish(mk.contact_force_markers(contact_pts, contact_f, [1], stamp))
 
@@ -88,6 +91,7 @@ def test_view_serves_hand_scene_and_contacts_to_a_websocket_client(ros_env):
                     data = json.loads(msg)
                     if data.get("op") == "advertise":
                         channels.update({c["topic"]: c for c in data["channels"]})
+            assert HEAVY_TOPICS.isdisjoint(channels), sorted(channels)  # skipped by default
             for topic, ty in WANTED.items():
                 c = channels[topic]
                 assert c["encoding"] == "cdr" and c["schemaEncoding"] == "ros2msg"
@@ -110,8 +114,10 @@ def test_view_serves_hand_scene_and_contacts_to_a_websocket_client(ros_env):
                     got[topic] = deserialize_message(msg[13:], WANTED[topic])
         assert view.stop() == 0, view.output()
 
-    skin = got["/hand/skin_marker"]
+    skin = got["/hand/right/skin_marker"]
     assert skin.type == Marker.TRIANGLE_LIST and len(skin.points) == 6
+    left = got["/hand/left/skin_marker"]
+    assert left.type == Marker.TRIANGLE_LIST and len(left.points) == 3 and left.id == 1
     scene = got["/world/markers"].markers
     assert [(m.ns, m.type) for m in scene] == [("world", Marker.CUBE), (rm.GROUND_NS, Marker.CUBE)]
     contacts = got[mk.CONTACT_MARKERS_TOPIC].markers

@@ -29,12 +29,12 @@ def test_sim_node_sizes_the_hand_on_the_first_second(ros_env):
     while the hand is made it keeps publishing /diagnostics (state building); after that it
     simulates the fitted hand: source auto, hand length within
     2 mm of `softhand calibrate`'s on the same bag (DDS may drop a frame of the window), and it
-    publishes /hand/bones."""
+    publishes /hand/right/bones."""
     bag = bags_dir() / "small_hand"
     expected = hand_length(fit_measures(*read_frames(bag)).measures) * 1e3
     with RosGraph(ros_env) as g:
         diag = g.listen("/diagnostics", DiagnosticArray)
-        bones = g.listen("/hand/bones", PoseArray)
+        bones = g.listen("/hand/right/bones", PoseArray)
         sim = g.start(["softhand-sim", *ARGS, "-p", "hand_measures:=auto"])
         tracking = g.start(["softhand-tracking", *ARGS])
         g.wait_until(lambda: latest(diag, "sim_node") is not None, 120, "sim_node diagnostics", sim)

@@ -90,7 +90,7 @@ def test_cg_at_cap_with_large_residual_rejected(params):
 def test_sim_node_reports_guard_in_diagnostics(ros_env):
     """sim_node with the 1-iteration CG of the previous test, fed hover bones then bones moved 10 cm:
     /diagnostics turns WARN with rejected_steps > 0 and the guard's message (last_guard_warning names the
-    CG cap), the log has the warning, and every /hand/bones it publishes is the placed (last good) pose,
+    CG cap), the log has the warning, and every /hand/right/bones it publishes is the placed (last good) pose,
     finite, never a rejected state. The same /diagnostics carry the tick's stage split (issue #20):
     stage_<name>_ms_p50/p99 of every runtime and node stage, and tick_ms_p50/p99 (>= step_ms's)."""
     from softhand_sim.sim_node import NODE_STAGES  # rclpy: only in this ROS test
@@ -101,13 +101,13 @@ def test_sim_node_reports_guard_in_diagnostics(ros_env):
     args = [x for k, v in CG_CAP_PARAMS.items() for x in ("-p", f"{k}:={v}")]
     with RosGraph(ros_env) as g:
         diags = g.listen("/diagnostics", DiagnosticArray)
-        bones = g.listen("/hand/bones", PoseArray)
-        pub = g.publisher("/hand/intermediate_bones", PoseArray)
+        bones = g.listen("/hand/right/bones", PoseArray)
+        pub = g.publisher("/hand/right/intermediate_bones", PoseArray)
         node = g.start(["softhand-sim", "--ros-args", *args])
         g.wait_matched(pub, timeout=60, proc=node)
         g.wait_until(lambda: len(diags) >= 1, 60, "first sim_node diagnostics", node)
         pub.publish(rm.pose_array_from_numpy(targets, 1))  # places the hand
-        g.wait_until(lambda: len(bones) >= 3, 30, "first /hand/bones", node)
+        g.wait_until(lambda: len(bones) >= 3, 30, "first /hand/right/bones", node)
         for _ in range(20):  # keep the moved target coming (latest-only subscription)
             pub.publish(rm.pose_array_from_numpy(moved, 2))
             time.sleep(0.05)
@@ -126,7 +126,7 @@ def test_sim_node_reports_guard_in_diagnostics(ros_env):
     st, values = guard_diag()
     poses = np.array([rm.pose_array_to_numpy(m) for m in bones.msgs])
     print(f"sim_node: {values['rejected_steps']} of {values['steps']} steps rejected; "
-          f"{len(poses)} /hand/bones messages; status: {st.message}")
+          f"{len(poses)} /hand/right/bones messages; status: {st.message}")
     assert st.level == b"\x01"  # WARN
     assert "CG stopped at its cap" in values["last_guard_warning"]
     assert "rejected" in st.message

@@ -83,7 +83,8 @@ def test_failure_keeps_the_default_hand(small_bag):
 
 
 def test_topic_and_side():
-    assert tracker_topic("right") == tracker_topic("left") == "/tracker/hand_joints"
+    assert tracker_topic("right") == "/tracker/right/hand_joints"  # each side's own frames
+    assert tracker_topic("left") == "/tracker/left/hand_joints"
     with pytest.raises(ValueError, match="side"):
         HandSizer(lambda m: m, side="both")
 

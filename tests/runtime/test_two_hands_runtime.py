@@ -3,8 +3,8 @@ target, per-hand outputs, contacts carry their hand; the hands parameter is chec
 import numpy as np
 import pytest
 
-from softhand_sim.params import load_params
-from softhand_sim.runtime import SimRuntime, hand_sides
+from softhand_sim.params import ParamError, load_params
+from softhand_sim.runtime import SimRuntime, check_hand_measures, hand_sides
 from softhand_sim.scenarios.bimanual import mirror_poses
 
 DT = 1.0 / 60.0
@@ -30,6 +30,16 @@ def test_hands_parameter():
     for bad in (["middle"], ["right", "right"]):
         with pytest.raises(ValueError, match="hands"):
             hand_sides(load_params("sim_node", overrides={"hands": bad}))
+
+
+def test_auto_size_is_refused_with_two_hands():
+    """`hand_measures: auto` sizes one hand: with one hand (either side) or fixed measures it passes;
+    with two hands it is a ParamError naming both parameters (sim_node reports it and exits 1)."""
+    for overrides in ({"hand_measures": "auto"}, {"hand_measures": "auto", "hands": ["left"]},
+                      {"hands": ["right", "left"]}):
+        check_hand_measures(load_params("sim_node", overrides=overrides))
+    with pytest.raises(ParamError, match=r"'hand_measures' = 'auto'.*'hands' = \['right', 'left'\]"):
+        check_hand_measures(load_params("sim_node", overrides={"hands": ["right", "left"], "hand_measures": "auto"}))
 
 
 def test_each_hand_enters_at_its_first_target_and_holds_its_last(runtime):

@@ -5,7 +5,8 @@ with rclpy and serves them over Foxglove's WebSocket protocol with Foxglove's ow
 (`foxglove-sdk`), one channel per topic. Each channel carries the topic's ROS 2 type: the message
 is forwarded as rclpy receives it (CDR bytes, `raw=True`, never deserialized here) with the type's
 ros2msg definition as the schema, which is what foxglove_bridge sends too; so the Foxglove 3D panel
-draws /hand/skin_marker, /world/markers and /hand/contact_markers, and the Plot panel reads
+draws /hand/{right,left}/skin_marker, /world/markers, /hand/contact_markers and the /tf bone
+frames, and the Plot panel reads
 /diagnostics, exactly as from a recording (docs/foxglove/softhand_layout.json works for both).
 
 The server binds to 127.0.0.1 by default: nothing leaves the machine. In the Foxglove app:
@@ -40,7 +41,7 @@ def build_parser():
     p.add_argument("--domain-id", type=int, default=None,
                    help="ROS_DOMAIN_ID to join (default: the environment's ROS_DOMAIN_ID, else 0)")
     p.add_argument("--topics", nargs="+", default=None, metavar="TOPIC",
-                   help="softhand topics to forward (default: all but /hand/skin_vertices)")
+                   help="softhand topics to forward (default: all but the heavy /hand/{side}/skin_vertices)")
     return p
 
 

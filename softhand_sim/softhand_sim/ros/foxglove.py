@@ -9,10 +9,12 @@ import os
 import threading
 import time
 
+from softhand_sim.topics import HEAVY_TOPICS
+
 DEFAULT_HOST = "127.0.0.1"
 DEFAULT_PORT = 8765
-#: Topics not forwarded by default: the full-resolution skin cloud is heavy and off by default.
-SKIPPED_BY_DEFAULT = ("/hand/skin_vertices",)
+#: Topics not forwarded by default: the full-resolution skin clouds (both sides) are heavy.
+SKIPPED_BY_DEFAULT = HEAVY_TOPICS
 
 
 def default_topics():

@@ -1,9 +1,10 @@
 """TF for softhand: the simulated bones on /tf, the fixed scene frames on /tf_static.
 
 Frames (docs/INTERFACE.md):
-  /tf         every sim step, one tf2_msgs/TFMessage: each bone of BONE_NAMES as frame
-              `{side}_{bone}` (e.g. `right_index_distal`), parent `world`, at the bone pose that
-              /hand/bones carries at the same stamp (the bone frame = the bone's body frame).
+  /tf         every sim step, one tf2_msgs/TFMessage per simulated hand: each bone of BONE_NAMES
+              as frame `{side}_{bone}` (e.g. `right_index_distal`), parent `world`, at the bone
+              pose that /hand/{side}/bones carries at the same stamp (the bone frame = the bone's
+              body frame).
   /tf_static  once, transient local: `world` -> `ground` (the ground plane, z = ground height) and
               `world` -> `{name}` for each static object of the scene (e.g. `table`, at its pose).
 
@@ -44,7 +45,7 @@ def tf_message_class():
 
 
 def bone_frames(side: str) -> list[str]:
-    """Frame names of the simulated bones, in /hand/bones order: ['right_palm', ...]."""
+    """Frame names of hand `side`'s simulated bones, in /hand/{side}/bones order: ['right_palm', ...]."""
     return [f"{side}_{bone}" for bone in BONE_NAMES]
 
 
@@ -129,29 +130,34 @@ class BoneTfSerializer:
 class TfBroadcaster:
     """Publishes the bone frames on /tf and the scene's fixed frames on /tf_static for one node.
 
-    `publish_bones(poses, stamp)` each step (poses (16, 7) as on /hand/bones). QoS: /tf as every
+    sides: the simulated hands ('right', or a sequence such as ('right', 'left')).
+    `publish_bones(poses, stamp, side)` each step for each hand that is simulated (poses (16, 7)
+    as on /hand/{side}/bones): one TFMessage per hand, so a hand that has not entered yet is
+    simply not published and one hand costs what it cost before two existed. QoS: /tf as every
     softhand publisher (`pub_qos`), /tf_static transient local (`latched_qos`), like tf2_ros'
     static broadcaster, so a late listener still gets it. Without tf2_msgs: a no-op, and one
     warning on the node's log naming the reason.
     """
 
-    def __init__(self, node, side: str, scene, pub_qos, latched_qos):
+    def __init__(self, node, sides, scene, pub_qos, latched_qos):
         cls, why = tf_message_class()
+        self.sides = (sides,) if isinstance(sides, str) else tuple(sides)
         self.available = cls is not None
         self.reason = why
-        self.frames = bone_frames(side)
+        self.frames = {side: bone_frames(side) for side in self.sides}
         if not self.available:
             node.get_logger().warning(f"{why}: not publishing /tf and /tf_static; {MISSING_HINT}")
             return
-        self._serializer = BoneTfSerializer(self.frames)
+        self._serializers = {side: BoneTfSerializer(frames) for side, frames in self.frames.items()}
         self._pub = node.create_publisher(cls, TF_TOPIC, pub_qos)
         self._pub_static = node.create_publisher(cls, TF_STATIC_TOPIC, latched_qos)
         names, poses = static_scene_frames(scene)
         self._pub_static.publish(cls(transforms=transforms(names, poses, node.get_clock().now().to_msg())))
 
-    def publish_bones(self, poses, stamp) -> None:
+    def publish_bones(self, poses, stamp, side: str | None = None) -> None:
+        """Hand `side`'s bone frames (default: the first of `sides`) at `stamp`."""
         if self.available:
-            self._pub.publish(self._serializer.serialize(poses, stamp))
+            self._pub.publish(self._serializers[side or self.sides[0]].serialize(poses, stamp))
 
 
 # ------------------------------------------------------------------------- lookup (no tf2_ros)
