@@ -76,11 +76,16 @@ def make_two_hand_bag(name, out_dir: Path) -> Path:
                       for s, j in zip(stamps, joints)), key=lambda r: (r[2], r[0]))
     write_bag(path, ((topic, t, s, serialize(pose_array(s, j), MSGTYPE)) for topic, t, s, j in records),
               storage="mcap")
-    params = {node: {"ros__parameters": values} for node, values in TWO_HAND_BAGS[name].items()}
+    write_params(path, name)
+    return path
+
+
+def write_params(path: Path, name: str):
+    """params.yaml beside bag `name` at path: the node parameters its scene needs (if any)."""
+    params = {node: {"ros__parameters": values} for node, values in TWO_HAND_BAGS.get(name, {}).items()}
     if params:
         (path / PARAMS_FILE).write_text(f"# parameters the scene of bag {name} needs (tools/make_bags.py)\n"
                                         + yaml.safe_dump(params, sort_keys=False))
-    return path
 
 
 def main(argv=None):

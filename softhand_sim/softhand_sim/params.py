@@ -63,6 +63,9 @@ _PAPER = "paper Sect. 5.1"
 SIM = {
     "sim_rate": P(float, 60.0, "Hz", "full-simulation step rate; dt = 1/sim_rate (the paper reaches 45-65 steps/s)",
                   10, 2000, positive=True),
+    "max_step": P(float, 0.0, "s", "keep real time when the machine cannot keep sim_rate: a late tick steps the time "
+                  "since the previous one, up to this long (0 or <= 1/sim_rate: always 1/sim_rate, and an overloaded "
+                  "node falls into slow motion behind the tracked hand)", 0.0, 0.2),
     "hand_side": P(str, "right", "-", "which hand to simulate when `hands` is empty", choices=("right", "left")),
     "hand_measures": P(str, "default", "-", "the simulated hand's size: 'default' (19 cm), a measures file written by "
                        "`softhand calibrate`, or 'auto': the first second of tracker frames (/tracker/{side}/hand_joints) "

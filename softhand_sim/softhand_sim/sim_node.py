@@ -117,6 +117,8 @@ class SimNode(Node):
         except (ParamError, ValueError, FileNotFoundError) as exc:
             fail(str(exc))
         self.dt = 1.0 / self.params["sim_rate"]
+        self.max_step, self.last_tick, self.long_steps = self.params["max_step"], None, 0
+        self.step_dt_ms = StepStats(window=DIAG_WINDOW)  # [ms] the steps' lengths (max_step set)
         log.info("compiling the solver kernels (first run of a checkout only: about a minute)...")
         self.runtime.warm_up(self.dt)
         log.info(f"ready in {time.monotonic() - t0:.1f} s: {self.runtime.describe()}")
@@ -227,7 +229,8 @@ class SimNode(Node):
             return
         t = self.now_s()
         t0 = time.perf_counter()
-        out = self.runtime.step(self.dt, t)
+        dt = self.step_dt(t)
+        out = self.runtime.step(dt, t)
         t1 = time.perf_counter()
         if out is None:  # no bone targets yet: nothing to simulate
             return
@@ -280,6 +283,20 @@ class SimNode(Node):
         for name, ms in (*out.stages.items(), ("messages", 1e3 * (t2 - t1)), ("publish", 1e3 * (t3 - t2))):
             self.stage_ms[name].add(ms)
 
+    def step_dt(self, t):
+        """The step's length [s]: 1/sim_rate, or with `max_step` set, the time since the previous
+        tick (at least 1/sim_rate, at most max_step): a node that cannot keep sim_rate then keeps
+        real time with longer steps instead of simulating in slow motion (implicit Euler stays
+        stable; the two-hand scenes hold at 12 steps/s offline)."""
+        last, self.last_tick = self.last_tick, t
+        if self.max_step <= self.dt or last is None:
+            return self.dt
+        dt = min(max(t - last, self.dt), self.max_step)
+        if dt > 1.5 * self.dt:
+            self.long_steps += 1
+        self.step_dt_ms.add(1e3 * dt)
+        return dt
+
     def stage_diagnostics(self):
         """stage_<name>_ms_p50 / _p99 of every stage of the tick (NaN before the first step)."""
         out = {}
@@ -313,6 +330,9 @@ class SimNode(Node):
             "tick_ms_p50": self.tick_ms.median(), "tick_ms_p99": self.tick_ms.percentile(99),
             **self.stage_diagnostics(),
             "overruns": self.step_ms.over_budget,
+            # max_step: steps longer than 1.5/sim_rate taken to keep real time, and their median length
+            **({"long_steps": self.long_steps, "step_dt_ms_p50": self.step_dt_ms.median()}
+               if self.max_step > self.dt else {}),
             **self.target_diagnostics(),
             **self.runtime.diagnostics(),
             **(self.sizer.diagnostics() if self.sizer is not None and self.sizer.state != "ready" else {}),
