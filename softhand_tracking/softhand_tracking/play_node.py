@@ -33,7 +33,7 @@ With --all (every topic) or --topics, the recording is replayed like `ros2 bag p
 of any type is published raw (the recorded CDR bytes, never deserialized) with the QoS its
 publishers offered when it was recorded (metadata `offered_qos_profiles`, chosen as rosbag2
 Jazzy's Rosbag2QoS::adapt_offer_to_recorded_offers does: the recorded profile with keep-last 10,
-or rosbag2's default when the publishers differed), so /hand/skin_mesh is transient local again
+or rosbag2's default when the publishers differed), so /hand/{side}/skin_mesh is transient local again
 and a viewer that joins late still gets a skin mesh. /clock is published as above (a recorded /clock
 topic is then left out); on --loop the header stamps of Header-first messages move with it.
 --wait-subscribers N then counts the subscribers of all replayed topics together.
