@@ -198,7 +198,8 @@ def tracker_frames(bag, topic: str = "", hand: str = "right"):
     out = {t: tracker_topic(hand) if t == LEGACY_TRACKER else t for t in played}
     if LEGACY_TRACKER in out and list(out.values()).count(out[LEGACY_TRACKER]) > 1:
         other = "left" if hand == "right" else "right"
-        hint = "" if tracker_topic(other) in out.values() else f", or play the legacy one as the {other} hand (--hand {other})"
+        hint = ("" if tracker_topic(other) in out.values()
+                else f", or play the legacy one as the {other} hand (--hand {other})")
         raise BagError(f"bag {rec.path} has both {LEGACY_TRACKER} and {out[LEGACY_TRACKER]}, which would play "
                        f"on the same topic: choose one with --topic{hint}")
     frames = [(stamp, out[t], raw) for stamp, t, raw in rec.messages if t in out]

@@ -198,7 +198,8 @@ def two_hand_bag(path, n=40, right_period=0.01, left_period=0.0125, left_offset=
             poses[0, :2] = i, 1.0
             if topic == LEFT:
                 poses = mirror_poses(poses)
-            records.append((topic, "geometry_msgs/msg/PoseArray", t, serialize_message(pose_array_from_numpy(poses, t))))
+            raw = serialize_message(pose_array_from_numpy(poses, t))
+            records.append((topic, "geometry_msgs/msg/PoseArray", t, raw))
             stamps[topic].append(t)
     write_bag(path, records)
     return stamps

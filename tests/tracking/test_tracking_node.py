@@ -224,7 +224,8 @@ def test_one_tracking_node_per_hand(ros_env, tmp_path):
             assert proc.stop() == 0, proc.output()
     for side, name in names.items():
         last = _tracking_diag(diags.msgs, name)[-1]
-        print(name, {k: last[k] for k in ("hand", "frames_received", "frames_accepted", "frames_rejected", "published")})
+        print(name, {k: last[k] for k in ("hand", "frames_received", "frames_accepted", "frames_rejected",
+                                          "published")})
         assert last["hand"] == side
         assert int(last["frames_received"]) == int(last["frames_accepted"]) == n  # its side's frames, all of them
         assert int(last["frames_rejected"]) == 0
