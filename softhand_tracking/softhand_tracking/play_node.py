@@ -352,6 +352,10 @@ class PlayNode(Node):
         def ready() -> bool:
             return matched() >= want and not self.missing_nodes()
 
+        def named_subs() -> set:
+            return {(topic, i.node_name) for topic in self._pubs_by_topic()
+                    for i in self.get_subscriptions_info_by_topic(topic) if i.node_name in self.cfg["wait_for_nodes"]}
+
         waited = want or self.cfg["wait_for_nodes"]
         while True:
             while not ready():
@@ -365,11 +369,13 @@ class PlayNode(Node):
                     return False
             # the writer has matched the readers; give the readers' side of discovery a moment too,
             # so the first messages are not sent to a reader that does not know this writer yet
+            subs = named_subs()
             if not self._sleep_until(time.monotonic() + (0.3 if waited else 0.0)):
                 return False
-            # ... and check again: a node may meanwhile have subscribed to a second replayed topic
-            # (a recorder finds the other hand's topic a discovery period later) without a match yet
-            if ready():
+            # ... and check again: a named node may meanwhile have subscribed to another replayed
+            # topic (a recorder finds the other hand's topic a discovery period later), which then
+            # gets its match and its moment too
+            if ready() and named_subs() == subs:
                 return True
 
     def _run_clock_ns(self) -> int:
