@@ -153,7 +153,9 @@ SIM = {
 
 TRACKING = {
     "rate": P(float, 250.0, "Hz", "intermediate-bone loop rate (paper Sect. 5.1: 250)", 10, 2000, positive=True),
-    "hand": P(str, "right", "-", "tracked hand", choices=("right", "left")),
+    "hand": P(str, "right", "-", "tracked hand: its topics /tracker/{hand}/hand_joints, /hand/{hand}/bones "
+              "-> /hand/{hand}/intermediate_bones (a second hand: a second node, -r __node:=tracking_node_left)",
+              choices=("right", "left")),
     "tracked_kx": P(float, 500.0, "N/m", "coupling of each intermediate bone to its tracked bone, linear "
                     "(paper: 50; 500 as sim_node's tracking_kx)", positive=True),
     "tracked_ktheta": P(float, 200.0, "N*m/rad", "coupling to the tracked bone, angular (paper: 200)", positive=True),
@@ -172,7 +174,8 @@ TRACKING = {
     "ref_smoothing": P(float, 0.015, "s", "time constant of the low-pass filter on the tracked velocity "
                        "(damping reference and extrapolation); 0: none", 0.0, 1.0),
     "tracker_timeout": P(float, 0.1, "s", "hold the last target when no valid frame arrived for this long", positive=True),
-    "sim_timeout": P(float, 0.5, "s", "forget the full-simulation copy when /hand/bones is older than this", positive=True),
+    "sim_timeout": P(float, 0.5, "s", "forget the full-simulation copy when /hand/{hand}/bones is older than this",
+                     positive=True),
     "tracker_to_world": P(list, [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0], "m, quaternion",
                           "tracker->world transform [px py pz qx qy qz qw]", size=7),
     "min_bone_length": P(float, 0.005, "m", "shorter tracked bones reject the frame", 0.0),
@@ -206,20 +209,24 @@ PLAY = {
     "rate": P(float, 1.0, "-", "playback speed factor (1 = recorded timing)", positive=True),
     "loop": P(bool, False, "-", "start again at the end"),
     "start": P(float, 0.0, "s", "skip this much of the bag", 0.0),
-    "topic": P(str, "/tracker/hand_joints", "-", "tracker topic in the bag"),
+    "topic": P(str, "", "-", "tracker topic of the bag to play (empty: every tracker topic in it, "
+               "/tracker/{right,left}/hand_joints interleaved in time and the legacy /tracker/hand_joints)"),
+    "hand": P(str, "right", "-", "the side the legacy /tracker/hand_joints of an older bag is played as "
+              "(/tracker/{hand}/hand_joints); side topics keep their names", choices=("right", "left")),
     "publish_clock": P(bool, True, "-", "publish /clock with the bag time"),
     "clock_rate": P(float, 250.0, "Hz", "/clock ticks per second between messages (0: only with messages)", 0.0, 1e4),
-    "wait_subscribers": P(int, 0, "-", "wait until this many subscribers match the topic before playing "
-                          "(the demo uses 1)", 0, 1000),
+    "wait_subscribers": P(int, 0, "-", "wait until this many subscriptions match the replayed topics (all "
+                          "together) before playing", 0, 1000),
     # [""], not []: ROS cannot type an empty list; empty entries are ignored
-    "wait_for_nodes": P(list, [""], "-", "wait until each of these nodes subscribes to the topic and is matched "
-                        "before playing (the demo names tracking_node and record_node)"),
+    "wait_for_nodes": P(list, [""], "-", "wait until each of these nodes subscribes to a replayed topic and is "
+                        "matched on every replayed topic it subscribes to before playing (the demo names its "
+                        "tracking nodes and record_node)"),
     "wait_timeout": P(float, 30.0, "s", "give up waiting for subscribers after this long", 0.0),
     "stamps": P(str, "publish", "-", "header stamps of the replayed frames: publish = their publish time on the "
                 "run's clock, as a live tracker stamps its capture; recorded = as in the bag",
                 choices=("publish", "recorded")),
     # [""], not []: ROS cannot type an empty list; empty entries are ignored
-    "replay_topics": P(list, [""], "-", "replay these topics of any type raw with their recorded QoS (empty: the tracker topic)"),
+    "replay_topics": P(list, [""], "-", "replay these topics of any type raw with their recorded QoS (empty: the tracker topics)"),
     "replay_all": P(bool, False, "-", "replay every topic of the recording raw with its recorded QoS"),
 }
 

@@ -4,7 +4,7 @@
 (`softhand_sim.physics.energies.rigid_coupling`, the sim's own implementation) to
 
 * its tracked bone (from the tracker adapter): kx = tracked_kx, k_theta = tracked_ktheta, and
-* its copy of the full-simulation bone (/hand/bones), held constant between updates:
+* its copy of the full-simulation bone (/hand/{hand}/bones), held constant between updates:
   palm kx = sim_kx and k_theta = sim_ktheta; phalanxes kx = 0 (paper: "only orientations for the
   phalanxes"). Without a copy (no sim running) only the tracked coupling acts.
 
@@ -306,8 +306,8 @@ class TrackingLoop:
     * `step(t)`: one period; returns the intermediate bones (16, 7), or None before the first
       valid frame (nothing is published before there is a hand). The bodies start at rest on the
       first tracked frame.
-    * `on_contacts(count, t)`: the number of active contacts of the simulated hand (/hand/contacts);
-      with feedback "contact" the feedback acts while there are any (module docstring).
+    * `on_contacts(count, t)`: the number of active contacts of this simulated hand (its points of
+      /hand/contacts); with feedback "contact" the feedback acts while there are any (module docstring).
     * Dropout: REF_STALE after the last valid frame the damping reference drops to zero (the held
       target no longer moves); `tracker_timeout` [s] after it the loop holds the last target
       and `holding` is True; the next valid frame resumes tracking, the
@@ -335,7 +335,7 @@ class TrackingLoop:
         self.sim_t = -np.inf
         self.last_contact_t = -np.inf  # [s] last time the simulated hand touched something
         self._last_step_t = None
-        self.sim_drops = 0             # sim copies dropped after sim_timeout without /hand/bones
+        self.sim_drops = 0             # sim copies dropped after sim_timeout without /hand/{hand}/bones
 
     @property
     def tracked(self) -> np.ndarray:

@@ -1,11 +1,16 @@
 """play_node: replays a tracker rosbag2 (mcap or sqlite3), or any topics of a recording, on its recorded timing.
 
     softhand-play BAG [--rate R] [--loop] [--start S] [--wait-subscribers N] [--wait-for-nodes NODE ...]
-                      [--stamps publish|recorded]
+                      [--stamps publish|recorded] [--topic T] [--hand right|left]
     softhand-play BAG --all | --topics T [T ...]      (a record_node / ros2 bag recording)
     ros2 run softhand_tracking play_node --ros-args -p bag:=BAG -p rate:=2.0
 
-Publishes the bag's /tracker/hand_joints messages (geometry_msgs/PoseArray) at wall time
+Tracker mode (the default) publishes the bag's tracker frames (geometry_msgs/PoseArray): every
+tracker topic found in it (docs/INTERFACE.md "Topics"), /tracker/right/hand_joints and
+/tracker/left/hand_joints as they are, and the single-hand /tracker/hand_joints of older bags as
+/tracker/{hand}/hand_joints (parameter `hand`, default right; it renames only that legacy topic).
+A two-hand bag's frames are played interleaved on one timeline, in bag time order. `topic` plays
+that one topic only (the legacy name renamed as above). Each frame goes out at wall time
 t0 + (bag_time - bag_start) / rate. Stamps (docs/INTERFACE.md "Stamps and clocks"): with
 `stamps: publish` (the default) each frame is stamped, as a live tracker stamps its capture, with
 its publish time on the run's clock: the node clock at the start of the replay plus
@@ -17,17 +22,19 @@ use_sim_time see a clock that advances through gaps (a tracker dropout) too. Wit
 repeats; each repeat shifts /clock and the stamps forward by the bag's duration plus one median
 period, so time never goes backwards.
 
-Nothing lost (docs/INTERFACE.md "QoS"): the publisher is reliable (it matches best-effort and
+Nothing lost (docs/INTERFACE.md "QoS"): the publishers are reliable (they match best-effort and
 reliable subscribers alike); with --wait-for-nodes the replay starts only once every named node
-has a subscription on the replayed topic(s) and the publisher has matched them, so no subscriber
-misses the first frames; at the end it waits for the reliable subscribers' acknowledgements.
+has a subscription on at least one replayed topic and each replayed topic's publisher has matched
+every named node subscribed to it (a recorder takes both hands' topics, a tracking_node only its
+own side's), so no subscriber misses the first frames; at the end it waits for the reliable
+subscribers' acknowledgements.
 
 With --all (every topic) or --topics, the recording is replayed like `ros2 bag play`: each topic
 of any type is published raw (the recorded CDR bytes, never deserialized) with the QoS its
 publishers offered when it was recorded (metadata `offered_qos_profiles`, chosen as rosbag2
 Jazzy's Rosbag2QoS::adapt_offer_to_recorded_offers does: the recorded profile with keep-last 10,
-or rosbag2's default when the publishers differed), so /hand/skin_mesh is transient local again
-and a viewer that joins late still gets the mesh. /clock is published as above (a recorded /clock
+or rosbag2's default when the publishers differed), so /hand/{side}/skin_mesh is transient local again
+and a viewer that joins late still gets a skin mesh. /clock is published as above (a recorded /clock
 topic is then left out); on --loop the header stamps of Header-first messages move with it.
 --wait-subscribers N then counts the subscribers of all replayed topics together.
 
@@ -44,6 +51,8 @@ from __future__ import annotations
 import argparse
 import sys
 import time
+from collections import Counter
+from pathlib import Path
 
 import numpy as np
 import rclpy
@@ -52,6 +61,7 @@ from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, LivelinessPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.serialization import deserialize_message
+from rosbags.rosbag2 import Reader
 from geometry_msgs.msg import PoseArray
 from rosgraph_msgs.msg import Clock
 
@@ -59,8 +69,9 @@ from softhand_sim.ros.common import PUB_QOS, message_class, split_cli
 from softhand_sim.ros.msgs import stamp_from_ns, stamp_to_ns
 from softhand_sim.params import ParamError
 from softhand_sim.ros.params import declare_node_params
-from softhand_sim.ros.bagio import (BagError, header_stamp_ns, read_recording, read_topic, starts_with_header,
-                                    with_header_stamp)
+from softhand_sim.ros.bagio import (BagError, check_bag_path, header_stamp_ns, mcap_is_closed, read_recording,
+                                    starts_with_header, with_header_stamp)
+from softhand_sim.topics import LEGACY_TRACKER, SIDES, TRACKER_TOPICS, tracker_topic
 
 MSGTYPE = "geometry_msgs/msg/PoseArray"
 _MAX_SLEEP_S = 0.02  # sleep in slices so a shutdown (signal) is noticed quickly
@@ -70,24 +81,32 @@ _MAX_SLEEP_S = 0.02  # sleep in slices so a shutdown (signal) is noticed quickly
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="softhand-play",
-        description="Replay a tracker rosbag2 (mcap or sqlite3) on /tracker/hand_joints on its recorded "
-                    "timing, publishing /clock with the bag time (for use_sim_time). Exits when done. "
+        description="Replay a tracker rosbag2 (mcap or sqlite3) on its recorded timing: every tracker topic "
+                    "in it, /tracker/{right,left}/hand_joints as they are (a two-hand bag interleaved on "
+                    "one timeline) and an older bag's /tracker/hand_joints as /tracker/{--hand}/hand_joints; "
+                    "publishes /clock with the bag time (for use_sim_time). Exits when done. "
                     "With --all or --topics, replay a recording's topics with their recorded QoS.",
-        epilog="ROS parameters of the same names (bag, rate, loop, start, topic, publish_clock, clock_rate, "
-               "wait_subscribers, wait_for_nodes, wait_timeout, stamps, replay_topics, replay_all) work with --ros-args -p NAME:=VALUE; flags override them.")
+        epilog="ROS parameters of the same names (bag, rate, loop, start, topic, hand, publish_clock, clock_rate, "
+               "wait_subscribers, wait_for_nodes, wait_timeout, stamps, replay_topics, replay_all) work with "
+               "--ros-args -p NAME:=VALUE; flags override them.")
     p.add_argument("bag", nargs="?", default=None, help="rosbag2 directory (folder with metadata.yaml)")
     p.add_argument("--rate", type=float, default=None, help="playback speed factor (default 1.0)")
     p.add_argument("--loop", action="store_true", default=None, help="repeat the bag until stopped")
     p.add_argument("--start", type=float, default=None, metavar="S", help="skip the first S seconds of the bag")
-    p.add_argument("--topic", default=None, help="topic (default /tracker/hand_joints)")
+    p.add_argument("--topic", default=None,
+                   help="play only this tracker topic of the bag (default: every tracker topic in it)")
+    p.add_argument("--hand", choices=SIDES, default=None,
+                   help="the side an older bag's /tracker/hand_joints is played as (default right)")
     p.add_argument("--no-clock", dest="publish_clock", action="store_false", default=None,
                    help="do not publish /clock")
     p.add_argument("--clock-rate", dest="clock_rate", type=float, default=None, metavar="HZ",
                    help="/clock ticks per second between messages (default 250, 0: only with messages)")
     p.add_argument("--wait-subscribers", dest="wait_subscribers", type=int, default=None, metavar="N",
-                   help="wait until N subscribers match the topic before playing (default 0)")
+                   help="wait until N subscriptions (all replayed topics together) match before playing "
+                        "(default 0)")
     p.add_argument("--wait-for-nodes", dest="wait_for_nodes", nargs="+", default=None, metavar="NODE",
-                   help="wait until each of these nodes subscribes to the topic and is matched")
+                   help="wait until each of these nodes subscribes to a replayed topic and is matched on "
+                        "every replayed topic it subscribes to")
     p.add_argument("--stamps", dest="stamps", choices=("publish", "recorded"), default=None,
                    help="header stamps: publish time on the run's clock (default) or as recorded")
     which = p.add_mutually_exclusive_group()
@@ -135,6 +154,58 @@ def playback_qos(offers: list) -> tuple[QoSProfile, str]:
                       avoid_ros_namespace_conventions=bool(q.avoid_ros_namespace_conventions)), ""
 
 
+def _indexed_topics(bag):
+    """The topics of a finished bag from its index (no message read), or None for a recording cut
+    short (one .mcap without metadata.yaml or without end magic: only reading it tells its topics)."""
+    p = check_bag_path(bag, allow_torn=True)
+    mcaps = sorted(p.glob("*.mcap"))
+    if len(mcaps) == 1 and (not (p / "metadata.yaml").is_file() or not mcap_is_closed(mcaps[0])):
+        return None
+    try:
+        with Reader(p) as reader:
+            return sorted({c.topic for c in reader.connections})
+    except Exception as exc:  # rosbags raises ReaderError, yaml, KeyError, struct errors...
+        raise BagError(f"cannot read bag {p} (corrupt or unsupported): {type(exc).__name__}: {exc}") from None
+
+
+def tracker_frames(bag, topic: str = "", hand: str = "right"):
+    """The tracker frames to replay: (recording, [(bag stamp [ns], topic to publish on, raw CDR)] in
+    bag time order, {bag topic: topic to publish on}).
+
+    topic "": every tracker topic of the bag (topics.TRACKER_TOPICS); else that topic only. The
+    per-side topics keep their names; the legacy /tracker/hand_joints becomes tracker_topic(hand).
+    BagError (naming the bag's topics) when there is no tracker topic, when a topic is not a
+    PoseArray, or when the legacy topic would be played on a side topic the bag also has.
+    """
+    if hand not in SIDES:
+        raise BagError(f"hand must be 'right' or 'left', got {hand!r}")
+    if topic:
+        rec = read_recording(bag, [topic], allow_torn=True)
+    else:
+        indexed = _indexed_topics(bag)
+        wanted = None if indexed is None else [t for t in indexed if t in TRACKER_TOPICS]
+        if wanted == []:
+            raise BagError(f"bag {Path(bag)} has no tracker topic ({', '.join(sorted(TRACKER_TOPICS))}); "
+                           f"topics in it: {', '.join(indexed) or 'none'}")
+        rec = read_recording(bag, wanted, allow_torn=True)
+        if indexed is None and not any(t in TRACKER_TOPICS for t in rec.topics):
+            raise BagError(f"bag {rec.path} has no tracker topic in its complete chunks "
+                           f"({', '.join(sorted(TRACKER_TOPICS))}); topics there: {', '.join(sorted(rec.topics))}")
+    played = sorted(t for t in rec.topics if t == topic or (not topic and t in TRACKER_TOPICS))
+    for t in played:
+        if rec.topics[t].msgtype != MSGTYPE:
+            raise BagError(f"topic {t} in bag {rec.path} has type {rec.topics[t].msgtype}, expected {MSGTYPE}")
+    out = {t: tracker_topic(hand) if t == LEGACY_TRACKER else t for t in played}
+    if LEGACY_TRACKER in out and list(out.values()).count(out[LEGACY_TRACKER]) > 1:
+        other = "left" if hand == "right" else "right"
+        hint = ("" if tracker_topic(other) in out.values()
+                else f", or play the legacy one as the {other} hand (--hand {other})")
+        raise BagError(f"bag {rec.path} has both {LEGACY_TRACKER} and {out[LEGACY_TRACKER]}, which would play "
+                       f"on the same topic: choose one with --topic{hint}")
+    frames = [(stamp, out[t], raw) for stamp, t, raw in rec.messages if t in out]
+    return rec, frames, out
+
+
 class PlayNode(Node):
     """Loads the bag in __init__ (so a bad bag fails before anything is published); play() replays it."""
 
@@ -154,29 +225,38 @@ class PlayNode(Node):
         if cfg["start"] < 0:
             raise BagError(f"start must be >= 0 s, got {cfg['start']}")
         self.raw_pubs = None  # topic -> publisher when replaying a recording's topics raw
+        self.pubs = {}        # tracker mode: topic -> publisher
         if cfg["replay_all"] or cfg["replay_topics"]:
             self._load_recording()
             return
-        data = read_topic(cfg["bag"], cfg["topic"], MSGTYPE, allow_torn=True)
-        if data.warning:
-            self.get_logger().warn(data.warning)
-        stamps = np.asarray(data.stamps_ns, dtype=np.int64)
+        rec, frames, renamed = tracker_frames(cfg["bag"], cfg["topic"], cfg["hand"])
+        if rec.warning:
+            self.get_logger().warn(rec.warning)
+        stamps = np.asarray([f[0] for f in frames], dtype=np.int64)
         keep = stamps >= stamps[0] + int(round(cfg["start"] * 1e9))
         if not keep.any():
-            raise BagError(f"start {cfg['start']} s is past the end of bag {data.path} "
-                           f"(duration {data.duration_s:.3f} s)")
-        try:
-            self.msgs = [deserialize_message(raw, PoseArray) for raw, k in zip(data.payloads, keep) if k]
-        except Exception as exc:
-            raise BagError(f"bag {data.path}: a {cfg['topic']} message does not decode as {MSGTYPE}: {exc}") from None
+            raise BagError(f"start {cfg['start']} s is past the end of bag {rec.path} "
+                           f"(duration {(stamps[-1] - stamps[0]) * 1e-9:.3f} s)")
+        self.msgs = []  # (topic, PoseArray) in bag time order, both hands' on one timeline
+        for (_stamp, out, raw), k in zip(frames, keep):
+            if not k:
+                continue
+            try:
+                self.msgs.append((out, deserialize_message(raw, PoseArray)))
+            except Exception as exc:
+                raise BagError(f"bag {rec.path}: a message for {out} does not decode as {MSGTYPE}: {exc}") from None
         self.stamps = stamps[keep]
         periods = np.diff(self.stamps)
         self.loop_shift_ns = int(self.stamps[-1] - self.stamps[0]) + (int(np.median(periods)) if periods.size else 0)
-        self.pub = self.create_publisher(PoseArray, cfg["topic"], PUB_QOS)
+        self.pubs = {out: self.create_publisher(PoseArray, out, PUB_QOS) for out in sorted(set(renamed.values()))}
         self.clock_pub = self.create_publisher(Clock, "/clock", PUB_QOS) if cfg["publish_clock"] else None
         self.published = 0
+        self.published_by_topic = Counter()
+        per_topic = Counter(out for out, _m in self.msgs)
+        listing = ", ".join(f"{per_topic[out]} on {out}" + (f" (recorded as {src})" if src != out else "")
+                            for src, out in sorted(renamed.items(), key=lambda kv: kv[1]))
         self.get_logger().info(
-            f"bag {data.path} ({data.storage}): {len(self.msgs)} messages on {cfg['topic']}, "
+            f"bag {rec.path} ({rec.storage}): {listing}, "
             f"{(self.stamps[-1] - self.stamps[0]) * 1e-9:.2f} s, rate x{cfg['rate']:g}"
             + (", looping" if cfg["loop"] else ""))
 
@@ -218,6 +298,7 @@ class PlayNode(Node):
         periods = np.diff(self.stamps)
         self.loop_shift_ns = int(self.stamps[-1] - self.stamps[0]) + (int(np.median(periods)) if periods.size else 0)
         self.published = 0
+        self.published_by_topic = Counter()
         self.get_logger().info(
             f"bag {rec.path} ({rec.storage}): {len(self.raw_msgs)} messages on {len(self.raw_pubs)} topics, "
             f"{(self.stamps[-1] - self.stamps[0]) * 1e-9:.2f} s, rate x{cfg['rate']:g}"
@@ -240,21 +321,23 @@ class PlayNode(Node):
             self.clock_pub.publish(Clock(clock=stamp_from_ns(bag_ns)))
 
     def _pubs_by_topic(self) -> dict:
-        return dict(self.raw_pubs) if self.raw_pubs is not None else {self.cfg["topic"]: self.pub}
+        return dict(self.raw_pubs) if self.raw_pubs is not None else dict(self.pubs)
 
     def missing_nodes(self) -> list:
-        """The wait_for_nodes not yet subscribed and matched: a node counts once the graph shows a
-        subscription of it on a replayed topic and that topic's publisher has matched at least as
-        many subscriptions as the named nodes hold there."""
+        """The wait_for_nodes not yet subscribed and matched. A node counts once the graph shows a
+        subscription of it on at least one replayed topic, and every replayed topic it subscribes to
+        has a publisher that matched at least as many subscriptions as the named nodes hold there
+        (a recorder subscribes both hands' tracker topics, a tracking_node its own side's only)."""
         want = self.cfg["wait_for_nodes"]
         if not want:
             return []
-        seen = set()
+        seen, unmatched = set(), set()
         for topic, pub in self._pubs_by_topic().items():
-            subs = [i for i in self.get_subscriptions_info_by_topic(topic) if i.node_name in want]
-            if subs and pub.get_subscription_count() >= len(subs):
-                seen.update(i.node_name for i in subs)
-        return [n for n in want if n not in seen]
+            subs = [i.node_name for i in self.get_subscriptions_info_by_topic(topic) if i.node_name in want]
+            seen.update(subs)
+            if subs and pub.get_subscription_count() < len(subs):
+                unmatched.update(subs)
+        return [n for n in want if n not in seen or n in unmatched]
 
     def wait_for_subscribers(self) -> bool:
         """Block until `wait_subscribers` subscriptions match and every node of `wait_for_nodes` is
@@ -266,18 +349,34 @@ class PlayNode(Node):
         def matched() -> int:
             return sum(p.get_subscription_count() for p in pubs)
 
-        while matched() < want or self.missing_nodes():
-            if time.monotonic() > deadline:
-                where = self.cfg["topic"] if self.raw_pubs is None else "the replayed topics"
-                missing = self.missing_nodes()
-                raise TimeoutError(f"{matched()} of {want} subscribers on {where} after {self.cfg['wait_timeout']} s"
-                                   + (f"; not subscribed and matched: {', '.join(missing)}" if missing else ""))
-            if not self._sleep_until(time.monotonic() + 0.05):
-                return False
-        # the writer has matched the readers; give the readers' side of discovery a moment too,
-        # so the first messages are not sent to a reader that does not know this writer yet
+        def ready() -> bool:
+            return matched() >= want and not self.missing_nodes()
+
+        def named_subs() -> set:
+            return {(topic, i.node_name) for topic in self._pubs_by_topic()
+                    for i in self.get_subscriptions_info_by_topic(topic) if i.node_name in self.cfg["wait_for_nodes"]}
+
         waited = want or self.cfg["wait_for_nodes"]
-        return self._sleep_until(time.monotonic() + (0.3 if waited else 0.0))
+        while True:
+            while not ready():
+                if time.monotonic() > deadline:
+                    where = ", ".join(self._pubs_by_topic())
+                    missing = self.missing_nodes()
+                    raise TimeoutError(f"{matched()} of {want} subscribers on {where} after "
+                                       f"{self.cfg['wait_timeout']} s"
+                                       + (f"; not subscribed and matched: {', '.join(missing)}" if missing else ""))
+                if not self._sleep_until(time.monotonic() + 0.05):
+                    return False
+            # the writer has matched the readers; give the readers' side of discovery a moment too,
+            # so the first messages are not sent to a reader that does not know this writer yet
+            subs = named_subs()
+            if not self._sleep_until(time.monotonic() + (0.3 if waited else 0.0)):
+                return False
+            # ... and check again: a named node may meanwhile have subscribed to another replayed
+            # topic (a recorder finds the other hand's topic a discovery period later), which then
+            # gets its match and its moment too
+            if ready() and named_subs() == subs:
+                return True
 
     def _run_clock_ns(self) -> int:
         """The node clock now [ns]: the run's time the publish stamps start from."""
@@ -295,15 +394,16 @@ class PlayNode(Node):
         if self.raw_pubs is not None:
             self._timed_replay(list(zip(self.stamps, self.raw_msgs)), self._publish_raw)
         else:
-            recorded = [stamp_to_ns(m.header.stamp) for m in self.msgs]
+            recorded = [stamp_to_ns(m.header.stamp) for _topic, m in self.msgs]
             self._timed_replay(list(zip(self.stamps, zip(self.msgs, recorded))), self._publish_frame)
 
     def _publish_frame(self, item, bag_ns: int, shift: int, stamp_of) -> None:
         """One tracker frame. publish: the bag time of this frame on the run's clock (its capture,
         as a live tracker stamps it); recorded: the bag's header stamp, moved on by the loops."""
-        msg, rec_ns = item
+        (topic, msg), rec_ns = item
         msg.header.stamp = stamp_from_ns(stamp_of(bag_ns) if self.cfg["stamps"] == "publish" else rec_ns + shift)
-        self.pub.publish(msg)
+        self.pubs[topic].publish(msg)
+        self.published_by_topic[topic] += 1
 
     def _publish_raw(self, item, bag_ns: int, shift: int, stamp_of) -> None:
         """One message of a recording's topics, raw CDR bytes on its topic's publisher."""
@@ -313,6 +413,7 @@ class PlayNode(Node):
             # stamps keep their relations (an output still pairs with its tracker frame)
             raw = with_header_stamp(raw, stamp_of(header_stamp_ns(raw) + shift))
         self.raw_pubs[topic].publish(raw)
+        self.published_by_topic[topic] += 1
 
     def _timed_replay(self, items: list, publish) -> None:
         """Publish each (bag stamp [ns], item) at its bag time / rate with publish(item, bag_ns,
@@ -351,7 +452,8 @@ class PlayNode(Node):
                 # let reliable subscribers acknowledge the tail before the publishers go away
                 for pub in self._pubs_by_topic().values():
                     pub.wait_for_all_acked(Duration(seconds=2.0))
-                self.get_logger().info(f"done: published {self.published} messages")
+                per_topic = ", ".join(f"{n} on {t}" for t, n in sorted(self.published_by_topic.items()))
+                self.get_logger().info(f"done: published {self.published} messages ({per_topic})")
                 return
             loop += 1
             self.get_logger().info(f"loop {loop}: restarting the bag")
@@ -359,7 +461,7 @@ class PlayNode(Node):
 
 def main(args=None) -> None:
     ns, argv = split_cli(build_parser(), args)
-    overrides = {k: getattr(ns, k) for k in ("bag", "rate", "loop", "start", "topic", "publish_clock",
+    overrides = {k: getattr(ns, k) for k in ("bag", "rate", "loop", "start", "topic", "hand", "publish_clock",
                                              "clock_rate", "wait_subscribers", "wait_for_nodes", "stamps",
                                              "replay_topics", "replay_all")}
     rclpy.init(args=argv)

@@ -1,18 +1,22 @@
-"""tracking_node: the 250 Hz intermediate-bone loop of paper Sect. 3.6 as a ROS 2 node.
+"""tracking_node: the 250 Hz intermediate-bone loop of paper Sect. 3.6 as a ROS 2 node, one hand per process.
 
-    ros2 run softhand_tracking tracking_node [--ros-args -p hand:=left -p rate:=250.0 ...]
-    softhand-tracking
+    ros2 run softhand_tracking tracking_node [--ros-args -p hand:=right -p rate:=250.0 ...]
+    softhand-tracking --ros-args -r __node:=tracking_node_left -p hand:=left     (the second hand)
 
-Subscribes /tracker/hand_joints (PoseArray of 26 OpenXR joints, best effort, TRACKER_QOS), /hand/bones
-(PoseArray of 16, latest only) and /hand/contacts (only its point count: the feedback acts in contact); publishes /hand/intermediate_bones (PoseArray of 16, frame world,
-stamped with the node-clock time of its step) from a timer at `rate`, and /diagnostics at
-`diagnostics_rate`: achieved step rate, timer period p50/p99 and jitter, compute per step, steps
-run late (a late timer callback runs the steps it missed, so the rate holds on a busy machine) or
-skipped, tracker frames received, accepted and rejected by reason, time since the last valid tracker frame,
-dropout holds. Nothing is published before the
-first valid tracker frame. The physics and bookkeeping live in `loop.TrackingLoop`; this node
-converts messages, owns the timers and parameters. Honours use_sim_time (all times are the node
-clock's); Ctrl-C / SIGTERM exit 0.
+Parameter `hand` (right | left) picks the side and with it every topic (docs/INTERFACE.md "Topics"):
+subscribes /tracker/{hand}/hand_joints (PoseArray of 26 OpenXR joints, best effort, TRACKER_QOS),
+/hand/{hand}/bones (PoseArray of 16, latest only) and the shared /hand/contacts (only the number of
+points whose `hand` field is this side's: the feedback acts in contact of this hand; a cloud without
+the field is a single right hand's); publishes /hand/{hand}/intermediate_bones (PoseArray of 16,
+frame world, stamped with the node-clock time of its step) from a timer at `rate`, and /diagnostics
+at `diagnostics_rate` (status `<node name>: tracking loop`, value `hand`): achieved step rate, timer
+period p50/p99 and jitter, compute per step, steps run late (a late timer callback runs the steps it
+missed, so the rate holds on a busy machine) or skipped, tracker frames received, accepted and
+rejected by reason, time since the last valid tracker frame, dropout holds. Two hands are two
+processes (one core each, no shared state); everything that names the node uses its run-time name
+(`tracking_node`, `tracking_node_left`). Nothing is published before the first valid tracker frame.
+The physics and bookkeeping live in `loop.TrackingLoop`; this node converts messages, owns the timers
+and parameters. Honours use_sim_time (all times are the node clock's); Ctrl-C / SIGTERM exit 0.
 """
 from __future__ import annotations
 
@@ -26,15 +30,21 @@ from sensor_msgs.msg import PointCloud2
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
+from softhand_sim.params import ParamError
+from softhand_sim.physics.hands import HAND_CODE
 from softhand_sim.ros.common import (LATEST_QOS, PUB_QOS, DiagnosticsPublisher, RateMeter,
                                      fail, run_node, split_cli, take_pending)
-from softhand_sim.ros.msgs import pose_array_from_numpy, pose_array_to_numpy, stamp_to_seconds
+from softhand_sim.ros.msgs import diagnostic_name, pose_array_from_numpy, pose_array_to_numpy, stamp_to_seconds
 from softhand_sim.ros.params import declare_node_params
 from softhand_sim.timing import FixedRateScheduler, StepStats
+from softhand_sim.topics import hand_topic, tracker_topic
 from softhand_tracking.adapter import AdapterConfig, TrackerAdapter
 from softhand_tracking.loop import LoopConfig, TrackingLoop, extrapolate_poses, warm_up
 
+#: the default node name and the parameter schema's section; a second instance runs under another
+#: name (`-r __node:=tracking_node_left`), so logs and diagnostics use self.get_name()
 NODE_NAME = "tracking_node"
+DIAGNOSTIC_TASK = "tracking loop"
 # A late timer callback runs the steps it missed (each published, stamped with its own time) so the
 # loop keeps `rate` on average on a busy machine; more than this far behind, it skips ahead.
 MAX_CATCH_UP_S = 0.1
@@ -46,17 +56,47 @@ REJECT_LOG_PERIOD = 2.0  # [s] at most one log line about rejected tracker frame
 #: when five processes saturated both cores and this node fell 2 s behind; 1000 frames are 10 s.
 TRACKER_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000,
                          reliability=ReliabilityPolicy.BEST_EFFORT, durability=DurabilityPolicy.VOLATILE)
+_UINT8 = 2  # sensor_msgs/PointField.UINT8
+
+
+def hand_contact_count(cloud, code: int) -> int:
+    """Number of points of a /hand/contacts PointCloud2 whose `hand` field (uint8) equals `code`
+    (physics.hands.HAND_CODE: 0 right, 1 left).
+
+    Reads that one byte per point straight from the data (no decoding of the rest: the cloud comes
+    every sim step). A cloud without the field (recorded before two hands) is one right hand's: all
+    its points count for code 0 and none for 1. ValueError for a cloud whose data is shorter than
+    its header says or whose `hand` field is not uint8.
+    """
+    height, width, step = int(cloud.height), int(cloud.width), int(cloud.point_step)
+    n = height * width
+    field = next((f for f in cloud.fields if f.name == "hand"), None)
+    if field is None or n == 0:
+        return n if code == 0 else 0
+    if field.datatype != _UINT8:
+        raise ValueError(f"contacts field 'hand' has datatype {field.datatype}, expected UINT8 ({_UINT8})")
+    row_step = int(cloud.row_step)
+    data = np.frombuffer(cloud.data, dtype=np.uint8)
+    if data.size < height * row_step or row_step < width * step or field.offset >= step:
+        raise ValueError(f"contacts cloud has {data.size} bytes for {height} rows of {row_step} "
+                         f"({width} points of {step})")
+    rows = data[:height * row_step].reshape(height, row_step)
+    return int(np.count_nonzero(rows[:, field.offset:width * step:step] == code))
 
 
 class TrackingNode(Node):
     def __init__(self):
         super().__init__(NODE_NAME)
+        name = self.get_name()  # NODE_NAME unless remapped (a second hand: tracking_node_left)
         # the couplings of Eq. 14 and the damping change while running (ros2 param set); other keys at start
         live = {key: (lambda value, key=key: self.loop.bones.set_coupling(**{key: value}))
                 for key in ("tracked_kx", "tracked_ktheta", "sim_kx", "sim_ktheta", "damping_ratio")}
-        p = declare_node_params(self, NODE_NAME, live=live)
+        try:
+            p = declare_node_params(self, NODE_NAME, live=live)  # the schema's section is NODE_NAME's
+        except ParamError as exc:  # ... but the message names this node
+            raise ParamError(str(exc).replace(f"{NODE_NAME}:", f"{name}:", 1)) from None
         if len(p["tracker_to_world"]) != 7:
-            raise ValueError(f"{NODE_NAME}: parameter 'tracker_to_world' must be 7 numbers "
+            raise ValueError(f"{name}: parameter 'tracker_to_world' must be 7 numbers "
                              f"[px py pz qx qy qz qw], got {p['tracker_to_world']!r}")
         adapter = TrackerAdapter(AdapterConfig(
             hand=p["hand"], world_from_tracker=np.asarray(p["tracker_to_world"], dtype=float),
@@ -68,11 +108,16 @@ class TrackingNode(Node):
         self.loop = TrackingLoop(loop_config, adapter, tracker_timeout=p["tracker_timeout"],
                                  sim_timeout=p["sim_timeout"])
         warm_up(loop_config, adapter.config)  # every kernel compiled/loaded now, not mid-run
-        self.pub = self.create_publisher(PoseArray, "/hand/intermediate_bones", PUB_QOS)
-        self.tracker_sub = self.create_subscription(PoseArray, "/tracker/hand_joints", self.on_tracker, TRACKER_QOS)
-        self.create_subscription(PoseArray, "/hand/bones", self.on_sim_bones, LATEST_QOS)
-        # contact gates the feedback (parameter feedback: contact); only the count is read
+        self.hand = p["hand"]
+        self.hand_code = HAND_CODE[self.hand]
+        self.topics = {"tracker": tracker_topic(self.hand), "bones": hand_topic(self.hand, "bones"),
+                       "out": hand_topic(self.hand, "intermediate_bones")}
+        self.pub = self.create_publisher(PoseArray, self.topics["out"], PUB_QOS)
+        self.tracker_sub = self.create_subscription(PoseArray, self.topics["tracker"], self.on_tracker, TRACKER_QOS)
+        self.create_subscription(PoseArray, self.topics["bones"], self.on_sim_bones, LATEST_QOS)
+        # contact gates the feedback (parameter feedback: contact); only this hand's points are counted
         self.create_subscription(PointCloud2, "/hand/contacts", self.on_contacts, LATEST_QOS)
+        self.bad_contact_messages = 0
         self.rate_meter = RateMeter(window=int(5 * p["rate"]))
         self.step_ms = StepStats(window=int(5 * p["rate"]))  # [ms] compute per step
         self.published = 0
@@ -84,12 +129,14 @@ class TrackingNode(Node):
         self.scheduler = FixedRateScheduler(p["rate"], max_catch_up=max(1, int(MAX_CATCH_UP_S * p["rate"])))
         self._diag_mark = (time.monotonic(), 0)
         self.timer = self.create_timer(1.0 / p["rate"], self.on_timer)
-        DiagnosticsPublisher(self, self.collect_diagnostics, period=1.0 / p["diagnostics_rate"])
+        DiagnosticsPublisher(self, self.collect_diagnostics, period=1.0 / p["diagnostics_rate"],
+                             name=diagnostic_name(name, DIAGNOSTIC_TASK))
         # Objects made so far (rclpy, numba, numpy) live for the whole run: freezing them keeps the
         # collector's full passes from walking them, which otherwise stalls the loop ~50 ms.
         gc.collect()
         gc.freeze()
-        self.get_logger().info(f"tracking {p['hand']} hand at {p['rate']:.0f} Hz; waiting for /tracker/hand_joints")
+        self.get_logger().info(f"tracking the {self.hand} hand at {p['rate']:.0f} Hz; waiting for "
+                               f"{self.topics['tracker']}, publishing {self.topics['out']}")
 
     def now_s(self) -> float:
         return self.get_clock().now().nanoseconds * 1e-9
@@ -121,10 +168,16 @@ class TrackingNode(Node):
             self.loop.on_sim_bones(pose_array_to_numpy(msg), self.now_s())
         except ValueError as exc:
             self.bad_sim_messages += 1
-            self.get_logger().warn(f"ignored /hand/bones: {exc}", throttle_duration_sec=5.0)
+            self.get_logger().warn(f"ignored {self.topics['bones']}: {exc}", throttle_duration_sec=5.0)
 
     def on_contacts(self, msg: PointCloud2) -> None:
-        self.loop.on_contacts(int(msg.width) * int(msg.height), self.now_s())
+        try:
+            count = hand_contact_count(msg, self.hand_code)
+        except ValueError as exc:
+            self.bad_contact_messages += 1
+            self.get_logger().warn(f"ignored /hand/contacts: {exc}", throttle_duration_sec=5.0)
+            return
+        self.loop.on_contacts(count, self.now_s())
 
     def on_timer(self) -> None:
         self.rate_meter.tick()
@@ -155,6 +208,7 @@ class TrackingNode(Node):
         wall = time.monotonic()
         self._diag_mark = (wall, self.step_ms.count)
         values = {
+            "hand": self.hand,
             "rate_hz": (self.step_ms.count - mark_steps) / (wall - mark_t) if wall > mark_t else 0.0,
             "timer_rate_hz": stats["rate_hz"], "period_p50_ms": stats["period_p50_ms"],
             "period_p99_ms": stats["period_p99_ms"], "jitter_p99_ms": stats["jitter_p99_ms"],
@@ -168,7 +222,8 @@ class TrackingNode(Node):
             "time_since_tracker_s": since if np.isfinite(since) else -1.0,
             "holding": self.loop.holding, "holds": self.loop.holds,
             "sim_copy": self.loop.bones.sim_active, "sim_copy_drops": self.loop.sim_drops,
-            "bad_sim_messages": self.bad_sim_messages, "feedback_gain": self.loop.bones.sim_gain,
+            "bad_sim_messages": self.bad_sim_messages, "bad_contact_messages": self.bad_contact_messages,
+            "feedback_gain": self.loop.bones.sim_gain,
         }
         if not self.loop.initialized:
             return values, "warn", "waiting for the first valid tracker frame"
@@ -180,13 +235,16 @@ class TrackingNode(Node):
 def build_parser():
     return argparse.ArgumentParser(
         prog="tracking_node",
-        description="softhand elastic tracking (paper Sect. 3.6): turns /tracker/hand_joints (26 OpenXR "
-                    "joints) into 16 intermediate bones integrated at `rate` (250 Hz), each coupled to its "
-                    "tracked bone and to the simulated skeleton (/hand/bones); publishes "
-                    "/hand/intermediate_bones and /diagnostics. Holds the last target during tracker "
-                    "dropouts. Parameters (defaults in config/softhand.yaml, list with `softhand params "
+        description="softhand elastic tracking (paper Sect. 3.6) of one hand, the side of parameter `hand` "
+                    "(right | left): turns /tracker/{hand}/hand_joints (26 OpenXR joints) into 16 "
+                    "intermediate bones integrated at `rate` (250 Hz), each coupled to its tracked bone and "
+                    "to the simulated skeleton (/hand/{hand}/bones, in contact of this hand: /hand/contacts); "
+                    "publishes /hand/{hand}/intermediate_bones and /diagnostics. Holds the last target "
+                    "during tracker dropouts. Two hands: one process each, the second under another node "
+                    "name. Parameters (defaults in config/softhand.yaml, list with `softhand params "
                     "tracking_node`): --ros-args -p key:=value or --params-file FILE.",
-        epilog="example: softhand-tracking --ros-args -p hand:=left -p tracker_timeout:=0.2")
+        epilog="examples: softhand-tracking --ros-args -p tracker_timeout:=0.2   (right hand, node tracking_node); "
+               "softhand-tracking --ros-args -r __node:=tracking_node_left -p hand:=left   (left hand)")
 
 
 def main(args=None):

@@ -1,6 +1,7 @@
-"""play_node: replays a tracker bag on its recorded timing with /clock; replays a recording's topics
-with their recorded QoS (a late transient-local subscriber gets the mesh); plays the complete chunks
-of a recording cut short, with a warning; every unusable bag is a clear error."""
+"""play_node: replays a tracker bag on its recorded timing with /clock (an older bag's
+/tracker/hand_joints on one side's topic, a two-hand bag's side topics interleaved); replays a
+recording's topics with their recorded QoS (a late transient-local subscriber gets the mesh); plays
+the complete chunks of a recording cut short, with a warning; every unusable bag is a clear error."""
 import signal
 import time
 
@@ -18,15 +19,22 @@ from tests.support.rosproc import RosGraph, RosProc
 from softhand_sim.ros.common import LATCHED_QOS, PUB_QOS
 from softhand_sim.ros.msgs import mesh_from_numpy, pose_array_from_numpy, pose_array_to_numpy, stamp_to_ns
 from softhand_sim.ros.bagio import add_topic, flush_chunk, mcap_is_closed, open_writer, read_topic, write_bag
+from softhand_sim.topics import LEGACY_TRACKER, tracker_topic
+from softhand_tracking.adapter import mirror_poses
 
 # Timing over real DDS between processes on a shared 2-core machine: one retry absorbs a stall.
 pytestmark = [pytest.mark.ros, pytest.mark.flaky(reruns=1, reruns_delay=2)]
 
-TOPIC = "/tracker/hand_joints"
+#: the single-hand bags' topic (most bags here are such) and where play_node publishes it by default
+BAG_TOPIC = LEGACY_TRACKER
+TOPIC = tracker_topic("right")
+LEFT = tracker_topic("left")
 T0_NS = 1_700_000_000 * 10**9
+DEEP = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000, reliability=ReliabilityPolicy.RELIABLE,
+                  durability=DurabilityPolicy.VOLATILE)
 
 
-def tracker_bag(path, periods_s, storage="mcap", topic=TOPIC):
+def tracker_bag(path, periods_s, storage="mcap", topic=BAG_TOPIC):
     """A bag of len(periods)+1 PoseArrays (26 joints, joint 0 x = index) at the given spacings."""
     stamps = T0_NS + np.concatenate([[0], np.cumsum(np.round(np.asarray(periods_s) * 1e9))]).astype(np.int64)
     records = []
@@ -157,23 +165,92 @@ def test_start_skips_the_beginning(ros_env, tmp_path):
         assert [pose_array_to_numpy(m)[0, 0] for m in joints.msgs] == list(range(20, 30))
 
 
+MESH, BONES = "/hand/right/skin_mesh", "/hand/right/bones"
+def test_legacy_bag_plays_on_the_chosen_side(ros_env, tmp_path):
+    """An older bag's /tracker/hand_joints is played on /tracker/right/hand_joints by default (the
+    other tests here) and with --hand left (or -p hand:=left) on /tracker/left/hand_joints; nothing
+    goes out on the legacy name or on the other side."""
+    tracker_bag(tmp_path / "bag", [0.01] * 9)
+    for how in (["--hand", "left"], ["--ros-args", "-p", "hand:=left"]):
+        with RosGraph(ros_env) as g:
+            left = g.listen(LEFT, PoseArray)
+            right = g.listen(TOPIC, PoseArray)
+            legacy = g.listen(BAG_TOPIC, PoseArray)
+            proc = g.start(["softhand-play", str(tmp_path / "bag"), "--wait-for-nodes", "test_probe", *how])
+            assert proc.wait(30) == 0, proc.output()
+            g.wait_until(lambda: len(left) >= 10, 5, "all frames on the left topic")
+            assert [pose_array_to_numpy(m)[0, 0] for m in left.msgs] == list(range(10))
+            assert g.node.count_publishers(TOPIC) == 0 and g.node.count_publishers(BAG_TOPIC) == 0
+            assert len(right) == 0 and len(legacy) == 0
+        out = proc.output()
+        assert f"10 on {LEFT} (recorded as {BAG_TOPIC})" in out and f"done: published 10 messages (10 on {LEFT})" in out
+
+
+def two_hand_bag(path, n=40, right_period=0.01, left_period=0.0125, left_offset=0.004):
+    """A two-hand tracker bag: the right hand's frames (joint 0 x = index, y = +1) and the left
+    hand's (mirrored: y = -1) each at its own rate and phase. Returns {topic: bag stamps [ns]}."""
+    records, stamps = [], {TOPIC: [], LEFT: []}
+    for topic, period, offset in ((TOPIC, right_period, 0.0), (LEFT, left_period, left_offset)):
+        for i in range(n):
+            t = T0_NS + int(round((offset + i * period) * 1e9))
+            poses = np.zeros((26, 7))
+            poses[:, 6] = 1.0
+            poses[0, :2] = i, 1.0
+            if topic == LEFT:
+                poses = mirror_poses(poses)
+            raw = serialize_message(pose_array_from_numpy(poses, t))
+            records.append((topic, "geometry_msgs/msg/PoseArray", t, raw))
+            stamps[topic].append(t)
+    write_bag(path, records)
+    return stamps
+
+
+def test_two_hand_bag_plays_both_sides_interleaved(ros_env, tmp_path):
+    """A two-hand bag: both side topics are played, every frame once and in order on its own topic
+    (the left frames on the left topic), equal counts, on one timeline: the arrivals interleave as
+    the bag times do and each frame's publish stamp is its bag time on the run's clock (one offset
+    for both sides). --wait-for-nodes with a node subscribed to both topics waits for both."""
+    stamps = two_hand_bag(tmp_path / "bag")
+    with RosGraph(ros_env) as g:
+        got = {TOPIC: g.listen(TOPIC, PoseArray, DEEP), LEFT: g.listen(LEFT, PoseArray, DEEP)}
+        proc = g.start(["softhand-play", str(tmp_path / "bag"), "--wait-for-nodes", "test_probe"])
+        assert proc.wait(30) == 0, proc.output()
+        g.wait_until(lambda: all(len(c) >= 40 for c in got.values()), 5, "all frames of both hands")
+    assert len(got[TOPIC]) == len(got[LEFT]) == 40
+    offsets = []
+    for topic, sign in ((TOPIC, 1.0), (LEFT, -1.0)):
+        j0 = np.array([pose_array_to_numpy(m)[0, :2] for m in got[topic].msgs])
+        assert j0[:, 0].tolist() == list(range(40)) and np.all(j0[:, 1] == sign)
+        offsets.append(np.array([stamp_to_ns(m.header.stamp) for m in got[topic].msgs]) - np.array(stamps[topic]))
+    assert len(set(np.concatenate(offsets).tolist())) == 1  # one timeline: the same bag -> run offset
+    # arrival order of the two topics follows the bag time order (20 ms of scheduling noise allowed)
+    arrivals = sorted([(t, topic) for topic in got for t in got[topic].times])
+    bag_order = sorted([(t, topic) for topic in stamps for t in stamps[topic]])
+    switches = sum(a[1] != b[1] for a, b in zip(arrivals, arrivals[1:]))
+    assert switches >= 0.5 * sum(a[1] != b[1] for a, b in zip(bag_order, bag_order[1:])), switches
+    t_arr = {topic: np.array(got[topic].times) - got[TOPIC].times[0] for topic in got}
+    t_bag = {topic: (np.array(stamps[topic]) - stamps[TOPIC][0]) * 1e-9 for topic in got}
+    for topic in got:
+        assert np.median(np.abs(t_arr[topic] - t_bag[topic])) < 0.02, topic
+    out = proc.output()
+    assert f"40 on {LEFT}, 40 on {TOPIC}" in out and "done: published 80 messages" in out
+
+
 VOLATILE = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10, reliability=ReliabilityPolicy.RELIABLE,
                       durability=DurabilityPolicy.VOLATILE)
-DEEP = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000, reliability=ReliabilityPolicy.RELIABLE,
-                  durability=DurabilityPolicy.VOLATILE)
 
 
 def test_replay_recording_with_recorded_qos(ros_env, tmp_path):
-    """record_node records a latched /hand/skin_mesh and 60 /hand/bones; `softhand-play --all` replays them
+    """record_node records a latched /hand/right/skin_mesh and 60 /hand/right/bones; `softhand-play --all` replays them
     with the recorded QoS: the mesh publisher is transient local again, so a subscriber that joins after the
     mesh was replayed still gets it (a volatile one joining with it gets nothing), and every bone message
     arrives once, in order."""
     rec, n = tmp_path / "rec", 60
     with RosGraph(ros_env) as g:
-        mesh_pub = g.publisher("/hand/skin_mesh", Mesh, LATCHED_QOS)
+        mesh_pub = g.publisher(MESH, Mesh, LATCHED_QOS)
         mesh_pub.publish(mesh_from_numpy(np.eye(3), [[0, 1, 2]]))
-        bones_pub = g.publisher("/hand/bones", PoseArray, DEEP)
-        recorder = g.start(["softhand-record", "-o", str(rec), "--topics", "/hand/skin_mesh", "/hand/bones"])
+        bones_pub = g.publisher(BONES, PoseArray, DEEP)
+        recorder = g.start(["softhand-record", "-o", str(rec), "--topics", MESH, BONES])
         g.wait_matched(mesh_pub, proc=recorder)
         g.wait_matched(bones_pub, proc=recorder)
         for i in range(n):  # ~3 s of recording, the mesh first
@@ -184,15 +261,15 @@ def test_replay_recording_with_recorded_qos(ros_env, tmp_path):
         assert bones_pub.wait_for_all_acked(Duration(seconds=10))
         assert recorder.stop(signal.SIGINT) == 0, recorder.output()
     with RosGraph(ros_env) as g:  # a new graph: the recording's publishers are gone
-        bones = g.listen("/hand/bones", PoseArray, VOLATILE)
+        bones = g.listen(BONES, PoseArray, VOLATILE)
         proc = g.start(["softhand-play", str(rec), "--all", "--wait-subscribers", "1"])
         g.wait_until(lambda: len(bones) >= 5, 20, "the first bones (the mesh comes before them)", proc)
-        late_latched = g.listen("/hand/skin_mesh", Mesh, LATCHED_QOS)
-        late_volatile = g.listen("/hand/skin_mesh", Mesh, VOLATILE)
+        late_latched = g.listen(MESH, Mesh, LATCHED_QOS)
+        late_volatile = g.listen(MESH, Mesh, VOLATILE)
         g.wait_until(lambda: len(late_latched) >= 1, 20, "the kept mesh", proc)
-        offers = g.node.get_publishers_info_by_topic("/hand/skin_mesh")
+        offers = g.node.get_publishers_info_by_topic(MESH)
         assert [o.qos_profile.durability for o in offers] == [DurabilityPolicy.TRANSIENT_LOCAL]
-        assert [o.qos_profile.durability for o in g.node.get_publishers_info_by_topic("/hand/bones")] == \
+        assert [o.qos_profile.durability for o in g.node.get_publishers_info_by_topic(BONES)] == \
             [DurabilityPolicy.VOLATILE]
         assert proc.wait(30) == 0, proc.output()
         g.wait_until(lambda: len(bones) >= n, 5, "all bones")
@@ -200,7 +277,7 @@ def test_replay_recording_with_recorded_qos(ros_env, tmp_path):
         assert list(late_latched.msgs[0].triangles[0].vertex_indices) == [0, 1, 2]
         assert [pose_array_to_numpy(m)[0, 0] for m in bones.msgs] == list(range(n))
     out = proc.output()
-    assert "/hand/skin_mesh [shape_msgs/msg/Mesh]: reliable, transient_local" in out
+    assert f"{MESH} [shape_msgs/msg/Mesh]: reliable, transient_local" in out
     assert f"done: published {n + 1} messages" in out and "Traceback" not in out
 
 
@@ -208,7 +285,7 @@ def test_replay_chosen_topics_raw_with_loop(ros_env, tmp_path):
     """--topics replays only the named topics (raw); with --loop the header stamps inside the raw messages
     move forward by the bag's duration plus one period, as in tracker mode; /other is not published."""
     tracker_bag(tmp_path / "one", [0.01] * 9)  # 10 messages, 0.09 s
-    data = read_topic(tmp_path / "one", TOPIC, "geometry_msgs/msg/PoseArray")
+    data = read_topic(tmp_path / "one", BAG_TOPIC, "geometry_msgs/msg/PoseArray")
     records = [(TOPIC, "geometry_msgs/msg/PoseArray", t, raw) for t, raw in zip(data.stamps_ns, data.payloads)]
     records.append(("/other", "std_msgs/msg/String", T0_NS, serialize_message(String(data="x"))))
     write_bag(tmp_path / "bag", records)
@@ -232,7 +309,7 @@ def torn_tracker_bag(path, complete, pending, keep_metadata=False):
     magic, no metadata.yaml (with keep_metadata: the metadata.yaml of a finished bag of the same name,
     as when a bag is copied over a live one)."""
     writer = open_writer(path)
-    conn = add_topic(writer, TOPIC, "geometry_msgs/msg/PoseArray")
+    conn = add_topic(writer, TOPIC, "geometry_msgs/msg/PoseArray")  # a recording: the side topic
     for i in range(complete + pending):
         poses = np.zeros((26, 7))
         poses[:, 6] = 1.0
@@ -276,7 +353,7 @@ def _corrupt_mcap(d):
 
 
 def _wrong_type(d):
-    write_bag(d, [(TOPIC, "std_msgs/msg/String", T0_NS, serialize_message(String(data="x")))])
+    write_bag(d, [(BAG_TOPIC, "std_msgs/msg/String", T0_NS, serialize_message(String(data="x")))])
 
 
 ERROR_CASES = {
@@ -284,7 +361,7 @@ ERROR_CASES = {
     "not_a_bag": (lambda d: d.mkdir(), "has no metadata.yaml"),
     "corrupt_metadata": (lambda d: (d.mkdir(), (d / "metadata.yaml").write_text("{{{ not yaml")), "corrupt"),
     "corrupt_mcap": (_corrupt_mcap, "corrupt"),
-    "missing_topic": (lambda d: tracker_bag(d, [0.01], topic="/other"), "has no topic /tracker/hand_joints"),
+    "missing_topic": (lambda d: tracker_bag(d, [0.01], topic="/other"), "has no tracker topic"),
     "wrong_type": (_wrong_type, "has type std_msgs/msg/String, expected geometry_msgs/msg/PoseArray"),
 }
 

@@ -1,4 +1,4 @@
-"""Bad tracker input on /tracker/hand_joints (issue #10 item 1), through real tracking_node and
+"""Bad tracker input on /tracker/right/hand_joints (issue #10 item 1), through real tracking_node and
 sim_node processes: every malformed frame is rejected, counted by reason in /diagnostics and logged
 at a limited rate; nothing non-finite is ever published; a 5,000 msg/s burst and a 10,000-message
 fuzz leave both nodes up; valid frames afterwards are tracked again. (Solver guard rejections of sim_node are printed, not
@@ -18,6 +18,7 @@ from softhand_sim.ros import msgs as rm
 from softhand_tracking.adapter import _SEG_DIST, _SEG_PROX
 from softhand_sim.scenarios.tracker_bags import sample
 from softhand_sim.ros.msgs import status_node
+from softhand_sim.topics import hand_topic, tracker_topic
 
 PACED_HZ = 100.0   # categorized bad frames, paced (valid and bad alternate)
 # The subscription is best effort (sensor QoS, depth 5): on a loaded 2-core machine a node stalled
@@ -181,7 +182,7 @@ def test_bad_frames_rejected_counted_logged_never_published(ros_env):
     under its own reason (>= MIN_DELIVERED of those sent arrive over best effort, never more than sent, no other
     reason moves) and the valid ones are accepted (same delivery bound). (2) 5,000 valid frames at 5,000/s. (3) 10,000 random
     malformed frames as fast as possible: frames_accepted does not move. Then valid frames are tracked
-    again. Throughout: both nodes stay up, every /hand/intermediate_bones and /hand/bones is finite,
+    again. Throughout: both nodes stay up, every /hand/right/intermediate_bones and /hand/right/bones is finite,
     sim_node rejected no intermediate bones, and the rejection log is rate limited."""
     rng = np.random.default_rng(10)
     stamps, joints = frames()
@@ -198,10 +199,10 @@ def test_bad_frames_rejected_counted_logged_never_published(ros_env):
         return j, t
 
     with RosGraph(ros_env) as g:
-        inter = g.listen("/hand/intermediate_bones", PoseArray)
-        sim_bones = g.listen("/hand/bones", PoseArray)
+        inter = g.listen(hand_topic("right", "intermediate_bones"), PoseArray)
+        sim_bones = g.listen(hand_topic("right", "bones"), PoseArray)
         diags = g.listen("/diagnostics", DiagnosticArray)
-        pub = g.publisher("/tracker/hand_joints", PoseArray)
+        pub = g.publisher(tracker_topic("right"), PoseArray)
         tracking = g.start(["softhand-tracking"])
         sim = g.start(["softhand-sim"])
         g.wait_matched(pub, proc=tracking, timeout=60)
@@ -211,7 +212,7 @@ def test_bad_frames_rejected_counted_logged_never_published(ros_env):
         for _ in range(50):
             pub.publish(msg(*next_valid()))
             time.sleep(0.01)
-        g.wait_until(lambda: len(sim_bones) >= 5, 30, "/hand/bones", sim)
+        g.wait_until(lambda: len(sim_bones) >= 5, 30, "/hand/right/bones", sim)
         base = settle_diag(g, diags, tracking)
         assert base["frames_accepted"] >= 45 and base["frames_rejected"] == 0, base
 

@@ -1,4 +1,5 @@
-"""tracking_node at topic level: real processes (play_node -> tracking_node), real DDS on loopback."""
+"""tracking_node at topic level: real processes (play_node -> tracking_node), real DDS on loopback; one
+tracking_node per hand, each on its side's topics."""
 import gc
 import time
 from pathlib import Path
@@ -9,9 +10,14 @@ import pytest
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseArray
 
+from rclpy.serialization import serialize_message
+
 from tests.support.rosproc import RosGraph
-from softhand_sim.ros.msgs import diagnostic_values, pose_array_to_numpy, stamp_to_seconds
-from softhand_tracking.adapter import TrackerAdapter
+from softhand_sim.ros.bagio import write_bag
+from softhand_sim.ros.msgs import diagnostic_values, pose_array_from_numpy, pose_array_to_numpy, stamp_to_seconds
+from softhand_sim.scenarios.tracker_bags import sample
+from softhand_sim.topics import hand_topic, tracker_topic
+from softhand_tracking.adapter import AdapterConfig, TrackerAdapter, mirror_poses
 from softhand_sim.ros.msgs import status_node
 
 # Timing over real DDS between processes on a shared 2-core machine: one retry absorbs a stall.
@@ -25,17 +31,18 @@ REPO = Path(__file__).resolve().parents[2]
 FOLLOW_BOUND = 0.08
 
 
-def _tracking_diag(msgs):
+def _tracking_diag(msgs, node="tracking_node"):
     out = []
     for m in msgs:
         for st in m.status:
-            if status_node(st.name) == "tracking_node":
+            if status_node(st.name) == node:
                 out.append(diagnostic_values(st))
     return out
 
 
 def test_fast_dropout_bag_through_tracking_node(ros_env):
-    """play_node replays bags/fast_dropout into tracking_node: /hand/intermediate_bones (16 finite
+    """play_node replays bags/fast_dropout (an older single-hand bag: played as the right hand) into
+    tracking_node: /hand/right/intermediate_bones (16 finite
     poses, frame world) comes at 250 +- 5 Hz over the run (header stamps, and receive count), the
     intermediate palm stays within FOLLOW_BOUND (8 cm) of the tracked palm while tracked, bones
     keep coming and hold within 8 cm of the last target through the 300 ms dropout, settling on it, diagnostics report rate,
@@ -56,9 +63,9 @@ DEEP_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000, reliability=R
 
 def _run(ros_env, results):
     with RosGraph(ros_env) as g:
-        bones = g.listen("/hand/intermediate_bones", PoseArray)
+        bones = g.listen(hand_topic("right", "intermediate_bones"), PoseArray)
         # deep: a keep-last-10 listener lost frames here while the shared machine stalled this process
-        tracker = g.listen("/tracker/hand_joints", PoseArray, DEEP_QOS)
+        tracker = g.listen(tracker_topic("right"), PoseArray, DEEP_QOS)
         diags = g.listen("/diagnostics", DiagnosticArray)
         node = g.start(["softhand-tracking"])
         g.wait_until(lambda: len(diags) >= 1, 30, "first /diagnostics from tracking_node", node)
@@ -160,3 +167,72 @@ def test_sigterm_and_bad_parameter(ros_env):
         bad = g.start(["softhand-tracking", "--ros-args", "-p", "hand:=middle"])
         assert bad.wait(30) != 0
         assert "hand" in bad.output() and "middle" in bad.output(), bad.output()
+
+
+def two_hand_bag(path, n=150, left_shift=-0.3):
+    """A two-hand tracker bag from the first n frames of the grasp_short scenario: the right hand's
+    frames, and the left hand's = the same frames mirrored (adapter.mirror_poses) and moved by
+    left_shift [m] along y, 3 ms later. Returns {side: joints (n, 26, 7)}."""
+    stamps_ns, joints, _ = sample("grasp_short")
+    stamps_ns, joints = stamps_ns[:n], joints[:n]
+    left = np.stack([mirror_poses(j) for j in joints])
+    left[:, :, 1] += left_shift
+    records = []
+    for side, frames, offset in (("right", joints, 0), ("left", left, 3_000_000)):
+        for t, j in zip(stamps_ns, frames):
+            t = int(t) + offset
+            records.append((tracker_topic(side), "geometry_msgs/msg/PoseArray", t,
+                            serialize_message(pose_array_from_numpy(j, t))))
+    write_bag(path, records)
+    return {"right": joints, "left": left}
+
+
+def test_one_tracking_node_per_hand(ros_env, tmp_path):
+    """Two tracking_nodes, the right one under its default name and the left one as
+    `tracking_node_left -p hand:=left`, fed by play_node with a two-hand bag (--wait-for-nodes names
+    both): each receives and accepts exactly its side's frames (/diagnostics of its own name, value
+    hand), publishes /hand/{side}/intermediate_bones only, and its bones follow its own hand (the
+    left hand is 30 cm from the right one); nothing on the old un-sided topic."""
+    n = 150
+    frames = two_hand_bag(tmp_path / "bag", n)
+    tracked_palm = {side: np.array([TrackerAdapter(AdapterConfig(hand=side)).convert(j)[0, :3] for j in f])
+                    for side, f in frames.items()}
+    names = {"right": "tracking_node", "left": "tracking_node_left"}
+    with RosGraph(ros_env) as g:
+        bones = {side: g.listen(hand_topic(side, "intermediate_bones"), PoseArray) for side in names}
+        legacy = g.listen("/hand/intermediate_bones", PoseArray)
+        diags = g.listen("/diagnostics", DiagnosticArray)
+        nodes = {"right": g.start(["softhand-tracking"]),
+                 "left": g.start(["softhand-tracking", "--ros-args", "-r", "__node:=tracking_node_left",
+                                  "-p", "hand:=left"])}
+        for side, name in names.items():
+            g.wait_until(lambda: _tracking_diag(diags.msgs, name), 60, f"/diagnostics of {name}", nodes[side])
+        play = g.start(["softhand-play", str(tmp_path / "bag"), "--wait-for-nodes", *names.values()])
+        assert play.wait(40) == 0, play.output()
+
+        def settled(name):
+            got = [int(d["frames_received"]) for d in _tracking_diag(diags.msgs, name)]
+            return len(got) >= 2 and got[-1] == got[-2] and got[-1] > 0
+        for side, name in names.items():
+            g.wait_until(lambda: settled(name), 20, f"{name}: frame count settled", nodes[side])
+        for side in names:
+            assert g.node.count_publishers(hand_topic(side, "intermediate_bones")) == 1
+            assert g.node.count_subscribers(tracker_topic(side)) == 1  # its node only
+        assert g.node.count_publishers("/hand/intermediate_bones") == 0 and len(legacy) == 0
+        for side, proc in nodes.items():
+            assert proc.alive(), proc.output()
+            assert proc.stop() == 0, proc.output()
+    for side, name in names.items():
+        last = _tracking_diag(diags.msgs, name)[-1]
+        print(name, {k: last[k] for k in ("hand", "frames_received", "frames_accepted", "frames_rejected",
+                                          "published")})
+        assert last["hand"] == side
+        assert int(last["frames_received"]) == int(last["frames_accepted"]) == n  # its side's frames, all of them
+        assert int(last["frames_rejected"]) == 0
+        palms = np.array([pose_array_to_numpy(m)[0, :3] for m in bones[side].msgs])
+        assert len(palms) > 100
+        # its own hand: the last intermediate palm near its side's last tracked palm, 30 cm from the other's
+        other = "left" if side == "right" else "right"
+        assert np.linalg.norm(palms[-1] - tracked_palm[side][-1]) < 0.02
+        assert np.linalg.norm(palms[-1] - tracked_palm[other][-1]) > 0.2
+    assert "tracking the left hand" in nodes["left"].output()
