@@ -54,9 +54,8 @@ import time
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
-from softhand_sim.ros.common import (LATCHED_QOS, LATCHED_TOPICS, PUB_QOS, TOPIC_TYPES, message_class,
-                                     run_node, split_cli)
-from softhand_sim.topics import HEAVY_TOPICS, POSE_ARRAY, TRACKER_TOPICS
+from softhand_sim.ros.common import LATCHED_QOS, PUB_QOS, message_class, run_node, split_cli
+from softhand_sim.topics import HEAVY_TOPICS, LATCHED_TOPICS, POSE_ARRAY, TOPIC_TYPES, TRACKER_TOPICS
 from softhand_sim.params import ParamError
 from softhand_sim.ros.params import declare_node_params
 from softhand_sim.ros.bagio import (BagError, add_topic, flush_chunk, header_stamp_ns, known_type, open_writer,

@@ -9,7 +9,7 @@ from visualization_msgs.msg import Marker, MarkerArray
 
 from softhand_sim.ros import markers as mk
 from softhand_sim.ros import msgs as rm
-from softhand_sim.ros.common import TOPIC_TYPES
+from softhand_sim.topics import TOPIC_TYPES
 
 IDENT = [0, 0, 0, 0, 0, 0, 1]
 

@@ -19,7 +19,8 @@ from scipy.spatial.transform import Rotation
 from tests.support.rosproc import RosGraph, RosProc
 from softhand_sim.ros import msgs as rm
 from softhand_sim.ros.bagio import deserialize, read_recording
-from softhand_sim.ros.common import LATCHED_QOS, PUB_QOS, TOPIC_TYPES
+from softhand_sim.ros.common import LATCHED_QOS, PUB_QOS
+from softhand_sim.topics import TOPIC_TYPES
 from softhand_sim.ros.tf import (BoneTfSerializer, bone_frames, compose, lookup, static_scene_frames,
                                  tf_message_class, transform_table, transforms)
 from softhand_sim.scene import load_scene

@@ -47,7 +47,7 @@ def build_parser():
 
 def main(argv=None):
     args = build_parser().parse_args(argv)
-    from softhand_sim.ros.common import TOPIC_TYPES
+    from softhand_sim.topics import TOPIC_TYPES
     from softhand_sim.ros.foxglove import default_topics, serve  # rclpy from here on
 
     topics = default_topics()

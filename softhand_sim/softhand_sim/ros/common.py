@@ -31,7 +31,7 @@ from rclpy.utilities import remove_ros_args
 
 from softhand_sim.params import ParamError
 from softhand_sim.ros.msgs import diagnostic_array, diagnostic_name, diagnostic_status
-from softhand_sim.topics import LATCHED_TOPICS, TOPIC_TYPES  # noqa: F401 (the nodes import them from here)
+from softhand_sim.topics import TOPIC_TYPES
 
 # ------------------------------------------------------------------------------------------- QoS
 
@@ -57,8 +57,8 @@ RECORD_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000,
 
 # ---------------------------------------------------------------------------------------- topics
 
-# TOPIC_TYPES (topic -> ROS type, both hands' topics) and LATCHED_TOPICS live in softhand_sim.topics
-# (no rclpy there: the bag readers use them too) and are imported above for the nodes.
+# The topic table (TOPIC_TYPES, LATCHED_TOPICS, ...) lives in softhand_sim.topics: no rclpy there,
+# the bag readers use it too.
 
 
 def message_class(type_name: str):

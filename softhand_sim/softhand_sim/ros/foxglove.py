@@ -19,7 +19,7 @@ SKIPPED_BY_DEFAULT = HEAVY_TOPICS
 
 def default_topics():
     """topic -> ROS type of every softhand topic a viewer shows (docs/INTERFACE.md)."""
-    from softhand_sim.ros.common import TOPIC_TYPES
+    from softhand_sim.topics import TOPIC_TYPES
 
     return {t: ty for t, ty in TOPIC_TYPES.items() if t not in SKIPPED_BY_DEFAULT}
 
@@ -46,7 +46,8 @@ class TopicForwarder:
         import foxglove
         from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
-        from softhand_sim.ros.common import LATCHED_QOS, LATCHED_TOPICS, message_class
+        from softhand_sim.ros.common import LATCHED_QOS, message_class
+        from softhand_sim.topics import LATCHED_TOPICS
 
         view_qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=5,
                               reliability=ReliabilityPolicy.BEST_EFFORT, durability=DurabilityPolicy.VOLATILE)
