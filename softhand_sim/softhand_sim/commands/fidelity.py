@@ -53,10 +53,14 @@ def measures_for(spec, bag=None, seconds=1.0):
 
 
 def recorded_sides(bag):
-    """The hands a recording holds both tracked frames and simulated bones of, in SIDES order."""
-    from softhand_sim.ros.bagio import read_recording
-    topics = read_recording(bag).topics
-    return [s for s in SIDES if tracker_topic(s) in topics and hand_topic(s, "bones") in topics]
+    """The hands a recording holds both tracked frames and simulated bones of, in SIDES order
+    (by message counts: a recorder lists every hand's topics, messages or not)."""
+    from rosbags.rosbag2 import Reader
+    with Reader(bag) as reader:
+        counts = {}
+        for c in reader.connections:
+            counts[c.topic] = counts.get(c.topic, 0) + int(c.msgcount)
+    return [s for s in SIDES if counts.get(tracker_topic(s)) and counts.get(hand_topic(s, "bones"))]
 
 
 def recorded_fidelity(bag, measures, side="right"):

@@ -43,7 +43,8 @@ def read_frames(bag_dir, max_frames=60):
     marker_topics = {hand_topic(side, "skin_marker") for side in SIDES}
     with Reader(Path(bag_dir)) as reader:
         conns = [c for c in reader.connections if c.topic in marker_topics or c.topic == "/world/object_states"]
-        sides = [s for s in SIDES if any(c.topic == hand_topic(s, "skin_marker") for c in conns)]
+        # the hands that have markers (the recorder lists every hand's topic, messages or not)
+        sides = [s for s in SIDES if any(c.topic == hand_topic(s, "skin_marker") and c.msgcount for c in conns)]
         for conn, t_ns, raw in reader.messages(connections=conns) if conns else ():
             msg = store.deserialize_cdr(raw, conn.msgtype)
             t = t_ns * 1e-9
