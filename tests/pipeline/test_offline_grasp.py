@@ -62,6 +62,24 @@ def test_grasp_short_lifts_holds_and_drops_the_ball():
     assert r.rejected_steps == 0
 
 
+def test_left_hand_bag_follows_like_its_right_original():
+    """grasp_short_left (grasp_short mirrored, a left hand on /tracker/left/hand_joints) through the
+    whole pipeline with the left hand: the mirror image of the right-hand run. The simulated palm
+    path mirrored through the xz plane and the engine ball's path match the right run's within
+    1 mm, the ball contacts within 10 % (the tet meshes are mirrors; contact points are sampled on
+    each), and the ball is lifted, held and dropped as on the right."""
+    right = run_pipeline("grasp_short")
+    left = run_pipeline("grasp_short_left", tracking_overrides={"hand": "left"})
+    mirror = np.array([1.0, -1.0, 1.0])
+    np.testing.assert_array_equal(left.t, right.t)
+    assert np.abs(left.palm * mirror - right.palm).max() < 1e-3
+    assert np.abs(left.tracked_palm * mirror - right.tracked_palm).max() < 1e-9
+    assert np.abs(left.ball_engine * mirror - right.ball_engine).max() < 1e-3
+    held = right.ball_contacts > 0
+    assert np.abs(np.median(left.ball_contacts[held]) / np.median(right.ball_contacts[held]) - 1.0) < 0.1
+    assert left.ball_engine[:, 2].max() - left.ball_z0 >= 0.08 and left.rejected_steps == 0
+
+
 def test_squeeze_holds_the_ball_on_the_table_and_lets_go():
     """squeeze (cage, squeeze 1-2 cm deeper on the table, ease back, open): the ball stays
     caged (>= 3 contacts) through the squeeze phase with bounded forces (single skin points

@@ -127,11 +127,14 @@ class PipelineResult:
 def run_pipeline(bag=None, synth=None, until=None, sim_latency=None, sim_overrides=None,
                  world_overrides=None, tracking_overrides=None, params_file=None, progress=None, asset=None):
     """Run the pipeline over a bag (or synth scenario) until `until` [s] (default: end + 2 s).
-    asset: the HandAsset to simulate (default: the sim_node parameters' hand)."""
-    times, joints = read_frames(bag, synth)
+    asset: the HandAsset to simulate (default: the sim_node parameters' hand). The hand is the
+    tracking parameters' `hand` (tracking_overrides={"hand": "left"} runs a left-hand bag): its
+    frames are read and the sim simulates that side."""
     sp = load_params("sim_node", params_file, sim_overrides)
     wp = load_params("world_node", params_file, world_overrides)
     tp = load_params("tracking_node", params_file, tracking_overrides)
+    sp["hand_side"], sp["hands"] = tp["hand"], [tp["hand"]]
+    times, joints = read_frames(bag, synth, side=tp["hand"])
     scene = load_scene(sp["scene_file"] or None)
     runtime = SimRuntime(sp, scene=scene, asset=asset)
     world = World(load_scene(wp["scene_file"] or None), WorldConfig(
