@@ -66,17 +66,16 @@ def test_left_hand_bag_follows_like_its_right_original():
     """grasp_short_left (grasp_short mirrored, a left hand on /tracker/left/hand_joints) through the
     whole pipeline with the left hand: the mirror image of the right-hand run. The simulated palm
     path mirrored through the xz plane and the engine ball's path match the right run's within
-    1 mm, the ball contacts within 10 % (the tet meshes are mirrors; contact points are sampled on
-    each), and the ball is lifted, held and dropped as on the right."""
+    1 um (measured: 5e-14 m; the left hand model is the right one mirrored), the ball contacts
+    are as many, and the ball is lifted as high."""
     right = run_pipeline("grasp_short")
     left = run_pipeline("grasp_short_left", tracking_overrides={"hand": "left"})
     mirror = np.array([1.0, -1.0, 1.0])
     np.testing.assert_array_equal(left.t, right.t)
-    assert np.abs(left.palm * mirror - right.palm).max() < 1e-3
+    assert np.abs(left.palm * mirror - right.palm).max() < 1e-6
     assert np.abs(left.tracked_palm * mirror - right.tracked_palm).max() < 1e-9
-    assert np.abs(left.ball_engine * mirror - right.ball_engine).max() < 1e-3
-    held = right.ball_contacts > 0
-    assert np.abs(np.median(left.ball_contacts[held]) / np.median(right.ball_contacts[held]) - 1.0) < 0.1
+    assert np.abs(left.ball_engine * mirror - right.ball_engine).max() < 1e-6
+    np.testing.assert_array_equal(left.ball_contacts, right.ball_contacts)
     assert left.ball_engine[:, 2].max() - left.ball_z0 >= 0.08 and left.rejected_steps == 0
 
 
