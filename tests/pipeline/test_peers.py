@@ -67,8 +67,8 @@ def test_kill_and_restart_every_peer(ros_env):
     bag = str(bags_dir() / "grasp_short")
     with RosGraph(ros_env) as g:
         st = Status(g.listen("/diagnostics", DiagnosticArray))
-        inter = g.listen("/hand/intermediate_bones", PoseArray)
-        bones = g.listen("/hand/bones", PoseArray)
+        inter = g.listen("/hand/right/intermediate_bones", PoseArray)
+        bones = g.listen("/hand/right/bones", PoseArray)
         world = g.start(["softhand-world", *DIAG])
         sim = g.start(["softhand-sim", *DIAG])
         tracking = g.start(["softhand-tracking", *DIAG])

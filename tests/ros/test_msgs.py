@@ -83,16 +83,20 @@ def test_xyz_cloud_round_trip_float32():
 
 
 def test_contacts_cloud_round_trip_all_fields():
-    """Contacts cloud has the 11 docs/INTERFACE.md fields with their types and round-trips each of them."""
+    """Contacts cloud has the 12 docs/INTERFACE.md fields with their types and round-trips each of
+    them; 44 bytes a point (the hand byte sits in the old padding); a cloud written before the
+    hand field existed reads as the right hand's."""
     rng = np.random.default_rng(3)
     n = 40
     pts, nrm, frc = rng.normal(size=(n, 3)), rng.normal(size=(n, 3)), rng.normal(size=(n, 3))
     obj = rng.integers(0, 4, size=n)
     slip = rng.integers(0, 2, size=n)
-    msg = rm.contacts_cloud_from_numpy(pts, nrm, frc, obj, slip, 1.0)
+    hand = rng.integers(0, 2, size=n)
+    msg = rm.contacts_cloud_from_numpy(pts, nrm, frc, obj, slip, 1.0, hand=hand)
     types = {f.name: f.datatype for f in msg.fields}
-    assert list(types) == ["x", "y", "z", "nx", "ny", "nz", "fx", "fy", "fz", "object", "slip"]
+    assert list(types) == ["x", "y", "z", "nx", "ny", "nz", "fx", "fy", "fz", "object", "slip", "hand"]
     assert types["object"] == PointField.UINT32 and types["slip"] == PointField.UINT8
+    assert types["hand"] == PointField.UINT8 and msg.point_step == 44
     assert all(types[k] == PointField.FLOAT32 for k in list(types)[:9])
     back = rm.contacts_cloud_to_numpy(deserialize_message(serialize_message(msg), PointCloud2))
     np.testing.assert_array_equal(back["points"], pts.astype(np.float32))
@@ -100,6 +104,10 @@ def test_contacts_cloud_round_trip_all_fields():
     np.testing.assert_array_equal(back["forces"], frc.astype(np.float32))
     np.testing.assert_array_equal(back["object"], obj)
     np.testing.assert_array_equal(back["slip"], slip)
+    np.testing.assert_array_equal(back["hand"], hand)
+    old = deserialize_message(serialize_message(msg), PointCloud2)
+    old.fields = [f for f in old.fields if f.name != "hand"]  # as recorded before the field existed
+    assert not rm.contacts_cloud_to_numpy(old)["hand"].any()
     empty = rm.contacts_cloud_from_numpy(np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, 3)), [], [], 0)
     assert rm.contacts_cloud_to_numpy(empty)["points"].shape == (0, 3)
 
