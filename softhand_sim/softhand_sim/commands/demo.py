@@ -87,13 +87,12 @@ def bag_sides(bag, legacy_side="right"):
     """The hands a tracker bag drives, in SIDES order: the sides of its /tracker/{side}/hand_joints
     topics, and legacy_side for an old bag's /tracker/hand_joints. SystemExit naming the bag's
     topics when it has no tracker topic."""
-    from rosbags.rosbag2 import Reader
+    from softhand_sim.ros.bagio import BagError, topic_counts
 
     try:
-        with Reader(Path(bag)) as reader:
-            topics = sorted({c.topic for c in reader.connections})
-    except Exception as exc:  # rosbags raises several kinds
-        raise SystemExit(f"error: cannot read bag {bag}: {type(exc).__name__}: {exc}") from None
+        topics = sorted(topic_counts(bag))
+    except BagError as exc:
+        raise SystemExit(f"error: {exc}") from None
     found = {legacy_side if t == LEGACY_TRACKER else side_of(t) for t in topics
              if t == LEGACY_TRACKER or t in (tracker_topic(s) for s in SIDES)}
     if not found:

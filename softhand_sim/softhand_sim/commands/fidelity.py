@@ -55,11 +55,8 @@ def measures_for(spec, bag=None, seconds=1.0):
 def recorded_sides(bag):
     """The hands a recording holds both tracked frames and simulated bones of, in SIDES order
     (by message counts: a recorder lists every hand's topics, messages or not)."""
-    from rosbags.rosbag2 import Reader
-    with Reader(bag) as reader:
-        counts = {}
-        for c in reader.connections:
-            counts[c.topic] = counts.get(c.topic, 0) + int(c.msgcount)
+    from softhand_sim.ros.bagio import topic_counts
+    counts = topic_counts(bag)
     return [s for s in SIDES if counts.get(tracker_topic(s)) and counts.get(hand_topic(s, "bones"))]
 
 

@@ -177,6 +177,7 @@ def read_run(path, hand: str = "right"):
     from rosbags.rosbag2 import Reader
     from rosbags.typesys import Stores, get_typestore
 
+    from softhand_sim.commands.run_summary import tracking_frame_counts
     from softhand_sim.ros.msgs import status_node
 
     path = Path(path)
@@ -194,9 +195,7 @@ def read_run(path, hand: str = "right"):
                 for status in msg.status:
                     values = {kv.key: kv.value for kv in status.values}
                     if status_node(status.name).startswith("tracking_node") and values.get("hand", "right") == hand:
-                        for key in ("frames_received", "frames_accepted", "frames_rejected"):
-                            if key in values:
-                                counts[key.removeprefix("frames_")] = int(float(values[key]))
+                        counts.update(tracking_frame_counts(values))
                 continue
             stamps, recv, poses = rows[conn.topic]
             stamps.append(msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec)

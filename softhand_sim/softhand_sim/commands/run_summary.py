@@ -95,14 +95,14 @@ def frame_latency_ms(tracker_t, bones_t):
 def input_frames(input_bag, legacy_side="right"):
     """{side: messages on that side's tracker topic} of the input bag; an old single-hand bag's
     /tracker/hand_joints counts for `legacy_side` (as play_node plays it). None if unreadable."""
+    from softhand_sim.ros.bagio import BagError, topic_counts
+
     try:
-        reader, _ = _reader(input_bag)
-        with reader:
-            topics = [(c.topic, int(c.msgcount)) for c in reader.connections]
-    except Exception:
+        topics = topic_counts(input_bag)
+    except BagError:
         return None
     counts = {}
-    for topic, n in topics:
+    for topic, n in topics.items():
         side = legacy_side if topic == LEGACY_TRACKER else side_of(topic)
         if side is not None and topic in (LEGACY_TRACKER, tracker_topic(side)):
             counts[side] = counts.get(side, 0) + n
@@ -159,7 +159,7 @@ def hand_measures_line(h: dict) -> str:
     return line + (f" (sizing: {', '.join(extra)})" if extra else "")
 
 
-def _tracking_counts(values: dict) -> dict:
+def tracking_frame_counts(values: dict) -> dict:
     """received / accepted / rejected of one tracking node /diagnostics status (key -> string)."""
     return {key.removeprefix("frames_"): int(float(values[key]))
             for key in ("frames_received", "frames_accepted", "frames_rejected") if key in values}
@@ -213,7 +213,7 @@ def summarize_run(bag_dir, bag_name="", exit_codes=None, input_bag=None, play_lo
                     if status_node(status.name).startswith(TRACKING_NODE):  # the last report: final counts
                         values = {kv.key: kv.value for kv in status.values}
                         side = values.get("hand", "right")
-                        tracking_counts[side] = {**tracking_counts.get(side, {}), **_tracking_counts(values)}
+                        tracking_counts[side] = {**tracking_counts.get(side, {}), **tracking_frame_counts(values)}
                     if status_node(status.name) == "sim_node":
                         values = {kv.key: kv.value for kv in status.values}
                         # the last status wins whole: the sizer's keys leave it once the fitted hand runs

@@ -293,6 +293,20 @@ def read_topic(path, topic: str, msgtype: str, allow_torn: bool = False) -> Topi
     return TopicData(p, topic, msgtype, _storage_of(p), [stamps[i] for i in order], [payloads[i] for i in order])
 
 
+def topic_counts(path) -> dict:
+    """{topic: messages} of the (finalized) bag at `path`, from its index, no message read. A
+    recorder lists every topic it subscribed to, so a topic may be there with 0 messages.
+    BagError naming the bag when it cannot be read."""
+    try:
+        with Reader(Path(path)) as reader:
+            counts = {}
+            for c in reader.connections:
+                counts[c.topic] = counts.get(c.topic, 0) + int(c.msgcount)
+            return counts
+    except Exception as exc:  # rosbags raises ReaderError, yaml, KeyError, struct errors...
+        raise BagError(f"cannot read bag {path}: {type(exc).__name__}: {exc}") from None
+
+
 def read_tracker(path, side: str = "right", allow_torn: bool = False) -> TopicData:
     """The tracked frames of hand `side` in a tracker bag: its /tracker/{side}/hand_joints, or,
     in an old single-hand bag, /tracker/hand_joints (the bag's one hand, whichever side the caller
