@@ -189,7 +189,8 @@ WORLD = {
     "coupling_kx": P(float, 170.0, "N/m", "engine<->hand object coupling, linear, Eq. 14 (paper: 170)", positive=True),
     "coupling_ktheta": P(float, 70.0, "N*m/rad", "engine<->hand object coupling, angular, Eq. 14 (paper: 70)",
                          positive=True),
-    "coupling_damping": P(float, 0.0, "-", "damping ratio of the engine-side coupling spring (0: the paper's plain spring)",
+    "coupling_damping": P(float, 1.0, "-", "damping ratio of the engine-side coupling spring (0: the paper's plain "
+                          "spring, which a copy older than ~60 ms drives unstable; 1: critical, stable to ~100 ms)",
                           0.0, 2.0),
     "coupling_mode": P(str, "implicit", "-", "implicit: backward-Euler coupling force (stable); explicit: the paper's "
                        "plain spring at t", choices=("implicit", "explicit")),

@@ -39,7 +39,9 @@ COUPLING_MODES = ("implicit", "explicit")
 
 @dataclass
 class WorldConfig:
-    """Parameters of the world (the world_node parameters of the same names)."""
+    """Parameters of the world (the world_node parameters of the same names). The defaults here are
+    the paper's scheme; world_node's (config/softhand.yaml) depart where measured: no copy
+    extrapolation, a critically damped spring (coupling_damping 1), copy_timeout 0.5 s."""
 
     engine_rate: float = 120.0          # [Hz], 60..120
     coupling_kx: float = PAPER_KX       # [N/m] Eq. 14 linear stiffness
@@ -47,7 +49,7 @@ class WorldConfig:
     copy_timeout: float = 0.25          # [s] a hand copy older than this decouples its object
     extrapolate: bool = True            # constant-acceleration extrapolation of copies (Sect. 3.7)
     coupling_mode: str = "implicit"     # "implicit" (backward-Euler wrench) or "explicit" (plain)
-    coupling_damping: float = 0.0       # [-] damping ratio zeta of the engine-side spring (0: paper)
+    coupling_damping: float = 0.0       # [-] damping ratio zeta of the engine-side spring (0: paper; world_node: 1)
     coupling_max_omega: float = DEFAULT_MAX_OMEGA  # [rad/s] cap on sqrt(k/m), sqrt(ktheta/I); 0: off
     gravity: float = 9.81               # [m/s^2] magnitude, along -z
     solver_iterations: int = 50         # pybullet constraint solver iterations per step
@@ -66,6 +68,11 @@ class WorldConfig:
             raise ValueError(f"coupling_mode must be one of {COUPLING_MODES}, got {self.coupling_mode!r}")
         if not np.isfinite(self.gravity):
             raise ValueError(f"gravity must be finite, got {self.gravity!r}")
+        if self.extrapolate and self.coupling_damping > 0:
+            # measured on the stand-in pair (tests/world/test_world.py): damping toward an
+            # extrapolated copy's twist pumps energy into a released pair (0.02 J -> 1100 J)
+            raise ValueError(f"extrapolate=True needs coupling_damping=0 (got {self.coupling_damping!r}): "
+                             "the damped spring on extrapolated copies is unstable")
         return self
 
 
