@@ -180,6 +180,7 @@ class SimRuntime:
         self.rejected_steps = 0
         self.steps = 0
         self.last_t = 0.0
+        self.last_step_stamp = 0.0  # [s] the state time (stamp) of the last step's output
         self._prev_body_v = self.state.body_v[nb:].copy()
         self._skin = np.empty((len(self.model.skin_tet), 3))
         self._display = [None] * H
@@ -387,6 +388,7 @@ class SimRuntime:
         # the solver's stages cover its step but for its bookkeeping (a few us): that goes to none
         out.stages = {"targets": 1e3 * (t1 - t0), **{name: getattr(stats, f) for name, f in STAGE_FIELDS},
                       "guard": 1e3 * (t3 - t2), "skin": 1e3 * (t4 - t3), "output": 1e3 * (t5 - t4)}
+        self.last_step_stamp = out.t
         return out
 
     def _guard(self, stats):
@@ -406,6 +408,7 @@ class SimRuntime:
         c = self.contacts
         out = {"contacts": int(c.count), "collision_ms": float(c.collision_ms),
                 "rejected_steps": self.rejected_steps, "steps": self.steps,
+                "last_step_stamp": f"{self.last_step_stamp:.6f}",  # with `steps`: a recorder can count what it missed
                 "copy_gaps": sum(c.gaps for c in self.copies),
                 "stale_objects": ",".join(self.stale_objects(self.last_t)) or "-",
                 **measures_diagnostics(self.measures, self.measures_source)}

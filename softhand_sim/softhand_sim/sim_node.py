@@ -36,7 +36,7 @@ from softhand_sim.ros import msgs as rm
 from softhand_sim.ros.markers import CONTACT_MARKERS_TOPIC, ContactMarkerSerializer
 from softhand_sim.params import ParamError
 from softhand_sim.scene import SceneError
-from softhand_sim.ros.common import LATCHED_QOS, LATEST_QOS, PUB_QOS, SENSOR_QOS, DiagnosticsPublisher, RejectionLog, RateMeter, fail, run_node, split_cli
+from softhand_sim.ros.common import LATCHED_QOS, LATEST_QOS, PUB_QOS, SENSOR_QOS, STREAM_QOS, DiagnosticsPublisher, RejectionLog, RateMeter, fail, run_node, split_cli
 from softhand_sim.ros.params import declare_node_params
 from softhand_sim.ros.tf import TfBroadcaster
 from softhand_sim.timing import StepStats
@@ -74,7 +74,7 @@ class HandTopics:
 
     def __init__(self, node, side, code):
         self.side = side
-        self.bones = node.create_publisher(PoseArray, hand_topic(side, "bones"), PUB_QOS)
+        self.bones = node.create_publisher(PoseArray, hand_topic(side, "bones"), STREAM_QOS)
         self.skin = node.create_publisher(PointCloud2, hand_topic(side, "skin_vertices"), PUB_QOS)
         self.mesh = node.create_publisher(Mesh, hand_topic(side, "skin_mesh"), LATCHED_QOS)
         self.marker = node.create_publisher(Marker, hand_topic(side, "skin_marker"), PUB_QOS)
@@ -137,7 +137,7 @@ class SimNode(Node):
             hand.new_model(self.runtime)
             self.create_subscription(PoseArray, hand_topic(hand.side, "intermediate_bones"),
                                      lambda msg, hand=hand: self.on_bones(msg, hand), LATEST_QOS)
-        self.pub_objects = self.create_publisher(MultiDOFJointTrajectory, "/hand/object_states", PUB_QOS)
+        self.pub_objects = self.create_publisher(MultiDOFJointTrajectory, "/hand/object_states", STREAM_QOS)
         self.pub_contacts = self.create_publisher(PointCloud2, "/hand/contacts", PUB_QOS)
         self.pub_contact_markers = self.create_publisher(MarkerArray, CONTACT_MARKERS_TOPIC, PUB_QOS)  # viewers
         self.create_subscription(MultiDOFJointTrajectory, "/world/object_states", self.on_objects, LATEST_QOS)

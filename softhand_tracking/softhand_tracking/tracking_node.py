@@ -32,7 +32,7 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 
 from softhand_sim.params import ParamError
 from softhand_sim.physics.hands import HAND_CODE
-from softhand_sim.ros.common import (LATEST_QOS, PUB_QOS, DiagnosticsPublisher, RateMeter,
+from softhand_sim.ros.common import (LATEST_QOS, STREAM_QOS, DiagnosticsPublisher, RateMeter,
                                      fail, run_node, split_cli, take_pending)
 from softhand_sim.ros.msgs import diagnostic_name, pose_array_from_numpy, pose_array_to_numpy, stamp_to_seconds
 from softhand_sim.ros.params import declare_node_params
@@ -112,7 +112,7 @@ class TrackingNode(Node):
         self.hand_code = HAND_CODE[self.hand]
         self.topics = {"tracker": tracker_topic(self.hand), "bones": hand_topic(self.hand, "bones"),
                        "out": hand_topic(self.hand, "intermediate_bones")}
-        self.pub = self.create_publisher(PoseArray, self.topics["out"], PUB_QOS)
+        self.pub = self.create_publisher(PoseArray, self.topics["out"], STREAM_QOS)
         self.tracker_sub = self.create_subscription(PoseArray, self.topics["tracker"], self.on_tracker, TRACKER_QOS)
         self.create_subscription(PoseArray, self.topics["bones"], self.on_sim_bones, LATEST_QOS)
         # contact gates the feedback (parameter feedback: contact); only this hand's points are counted
@@ -121,6 +121,7 @@ class TrackingNode(Node):
         self.rate_meter = RateMeter(window=int(5 * p["rate"]))
         self.step_ms = StepStats(window=int(5 * p["rate"]))  # [ms] compute per step
         self.published = 0
+        self.published_stamp = 0.0  # [s] the stamp of the last message published
         self.lead_ns = int(round(p["lead"] * 1e9))
         self.drain_budget_s = 0.5 / p["rate"]  # [s] per tracker callback for the frames queued behind
         self.frames_received = 0
@@ -198,6 +199,7 @@ class TrackingNode(Node):
             poses = extrapolate_poses(poses, self.loop.bones.vel, self.loop.bones.com_local, self.lead_ns * 1e-9)
         self.pub.publish(pose_array_from_numpy(poses, int(t_ns) + self.lead_ns))
         self.published += 1
+        self.published_stamp = (int(t_ns) + self.lead_ns) * 1e-9
 
     def collect_diagnostics(self):
         now = self.now_s()
@@ -214,7 +216,7 @@ class TrackingNode(Node):
             "period_p99_ms": stats["period_p99_ms"], "jitter_p99_ms": stats["jitter_p99_ms"],
             "step_ms_p50": self.step_ms.median(), "step_ms_p99": self.step_ms.percentile(99),
             "step_ms_max": self.step_ms.max(),
-            "published": self.published, "late_steps": self.scheduler.late_steps,
+            "published": self.published, "published_stamp": f"{self.published_stamp:.6f}", "late_steps": self.scheduler.late_steps,
             "skipped_steps": self.scheduler.skipped_steps,
             "frames_received": self.frames_received, "frames_accepted": adapter.accepted,
             "frames_rejected": sum(adapter.rejected.values()),

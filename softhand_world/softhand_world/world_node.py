@@ -16,7 +16,7 @@ from trajectory_msgs.msg import MultiDOFJointTrajectory
 from visualization_msgs.msg import MarkerArray
 
 from softhand_sim.ros import msgs as rm
-from softhand_sim.ros.common import LATEST_QOS, PUB_QOS, DiagnosticsPublisher, RejectionLog, RateMeter, fail, run_node, split_cli
+from softhand_sim.ros.common import LATEST_QOS, PUB_QOS, STREAM_QOS, DiagnosticsPublisher, RejectionLog, RateMeter, fail, run_node, split_cli
 from softhand_sim.ros.params import declare_node_params
 from softhand_sim.scene import SceneError, load_scene
 from softhand_sim.timing import FixedRateScheduler, StepStats
@@ -67,12 +67,14 @@ class WorldNode(Node):
         self.rejections = RejectionLog(self.get_logger(), REJECT_LOG_PERIOD)
         self.meter = RateMeter()
         self.step_ms = StepStats(window=DIAG_WINDOW)  # [ms] per engine step
+        self.published = 0  # /world/object_states messages and the stamp of the last: what a recorder
+        self.published_stamp = 0.0  # should hold up to that stamp (tests/pipeline/test_across_hosts.py)
         # Engine step k ends at scheduler time k: the first one at start + dt. late_resyncs in
         # /diagnostics counts the times it fell more than MAX_CATCH_UP_STEPS behind and skipped ahead.
         self.scheduler = FixedRateScheduler(p["engine_rate"], max_catch_up=MAX_CATCH_UP_STEPS,
                                             clock_back_ns=int(CLOCK_BACK_S * 1e9),
                                             first_due_ns=int(round((self.world.time + self.world.dt) * 1e9)))
-        self.pub_states = self.create_publisher(MultiDOFJointTrajectory, "/world/object_states", PUB_QOS)
+        self.pub_states = self.create_publisher(MultiDOFJointTrajectory, "/world/object_states", STREAM_QOS)
         self.pub_markers = self.create_publisher(MarkerArray, "/world/markers", PUB_QOS)
         self.create_subscription(MultiDOFJointTrajectory, "/hand/object_states", self.on_hand_objects, LATEST_QOS)
         self.diag = DiagnosticsPublisher(self, self.collect_diagnostics, 1.0 / p["diagnostics_rate"])
@@ -117,6 +119,8 @@ class WorldNode(Node):
             s = self.world.states()
             self.pub_states.publish(rm.object_states_from_numpy(s.names, s.pose, s.twist, s.accel,
                                                                 rm.stamp_from_seconds(s.stamp)))
+            self.published += 1
+            self.published_stamp = s.stamp
 
     def on_markers(self):
         s = self.world.states()
@@ -138,6 +142,7 @@ class WorldNode(Node):
             "stale_copies": ",".join(stale),
             "copy_gaps": sum(c.gaps for c in self.world.copies),
             "late_resyncs": self.scheduler.resyncs,
+            "published": self.published, "published_stamp": f"{self.published_stamp:.6f}",
             **{f"rejected_{k}": v for k, v in self.rejections.counts.items()},
         }
         level = "warn" if stale or self.rejections.counts else "ok"

@@ -38,6 +38,14 @@ from softhand_sim.topics import TOPIC_TYPES
 #: Every softhand publisher (docs/INTERFACE.md): reliable, volatile, keep last 10.
 PUB_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
                      reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE)
+#: The state streams (/hand/{side}/intermediate_bones, /hand/{side}/bones, /hand/object_states,
+#: /world/object_states): PUB_QOS, but the writer keeps the last 1000 samples (4 s at 250 Hz) to
+#: resend to a reliable reader (a recorder; the nodes read them best effort). Across hosts
+#: (tests/pipeline/test_across_hosts.py) keep last 10 (40 ms) lost 1-2 % of the intermediate bones
+#: to the workstation's recorder on a clean LAN, keep last 250 (1 s) 0.6 % with 2 % packet loss,
+#: where a resend comes 0.3-1 s after the loss. Small messages: ~1 MB of history per stream at most.
+STREAM_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000,
+                        reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE)
 #: /hand/{side}/skin_mesh publisher and its subscribers: published once, kept for late joiners.
 LATCHED_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
                          reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
