@@ -1,6 +1,6 @@
 # softhand: the two commands of the README.
 #   make demo   replay a sample tracker bag through all three nodes; writes runs/<stamp>/
-#   make test   the whole test suite (unit, physics, real ROS 2 processes)
+#   make test   the whole test suite (unit, physics on two workers; then real ROS 2 processes)
 # Each creates .venv from requirements.lock on first use (python3 + python3-venv needed).
 # ROS processes started by the demo, tests and benchmarks set ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST
 # and a ROS_DOMAIN_ID of their own in code (softhand_sim/ros_env.py); the exports below make
@@ -56,8 +56,18 @@ tf2_msgs: $(STAMP)
 demo: venv
 	$(BIN)/softhand demo $(ARGS)
 
+# Two passes: the tests that start no ROS process (physics, hand model, config, ...) on both cores
+# with pytest-xdist, then the node-level tests one at a time (their rates and timing assume the
+# machine is theirs). Both passes run; make fails if either does. With ARGS: one plain pytest run of those.
 test: venv
+ifeq ($(strip $(ARGS)),)
+	@$(BIN)/python -m pytest -m "not ros" -n 2; a=$$?; \
+	  $(BIN)/python -m pytest -m ros; b=$$?; \
+	  echo "make test: tests without ROS processes exit $$a, node-level tests exit $$b"; \
+	  [ $$a -eq 0 ] && [ $$b -eq 0 ]
+else
 	$(BIN)/python -m pytest $(ARGS)
+endif
 
 bench: venv
 	$(BIN)/softhand bench $(ARGS)

