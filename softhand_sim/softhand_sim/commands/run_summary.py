@@ -45,12 +45,33 @@ def _reader(bag_dir):
     return Reader(Path(bag_dir)), get_typestore(Stores.ROS2_JAZZY)
 
 
-def _float_fields(obj):
-    """The field names of a message whose fields are all floats (Point, Quaternion, ColorRGBA...), else None."""
-    if not dataclasses.is_dataclass(obj):
-        return None
-    names = tuple(f.name for f in dataclasses.fields(obj) if not f.name.startswith("__"))  # not __msgtype__
-    return names if names and all(isinstance(getattr(obj, f), float) for f in names) else None
+_LEAVES: dict = {}
+
+
+def _float_leaves(obj):
+    """The dotted paths of the float fields of a message, through nested messages, skipping
+    integers and strings (Pose: position.x ... orientation.w; TransformStamped: transform.*), or
+    None when it holds a list or an array (those are walked element by element). Per type, cached."""
+    cls = type(obj)
+    if cls in _LEAVES:
+        return _LEAVES[cls]
+    paths = []
+
+    def walk(o, prefix):
+        for f in (f.name for f in dataclasses.fields(o) if not f.name.startswith("__")):  # not __msgtype__
+            v = getattr(o, f)
+            if isinstance(v, float):
+                paths.append(prefix + f)
+            elif dataclasses.is_dataclass(v):
+                if not walk(v, f"{prefix}{f}."):
+                    return False
+            elif isinstance(v, (list, tuple, np.ndarray)):
+                return False
+        return True
+
+    leaves = tuple(paths) if dataclasses.is_dataclass(obj) and walk(obj, "") and paths else None
+    _LEAVES[cls] = leaves
+    return leaves
 
 
 def _finite(msg, depth=0):
@@ -62,9 +83,10 @@ def _finite(msg, depth=0):
     if isinstance(msg, np.ndarray):
         return msg.dtype.kind != "f" or bool(np.all(np.isfinite(msg)))
     if isinstance(msg, (list, tuple)):
-        names = _float_fields(msg[0]) if msg else None
+        names = _float_leaves(msg[0]) if msg else None
         if names and all(type(m) is type(msg[0]) for m in msg):
-            # a marker's points: one array instead of a call per float (the skin marker has 70k)
+            # a list of poses, points, transforms: one array instead of a call per float (the skin
+            # marker has 70k points; a summary walked 1.8 M fields one call each, 7 s of a demo)
             values = np.fromiter(chain.from_iterable(map(attrgetter(*names), msg)) if len(names) > 1
                                  else map(attrgetter(names[0]), msg), dtype=np.float64)
             return bool(np.all(np.isfinite(values)))
