@@ -209,6 +209,9 @@ PLAY = {
     "bag": P(str, "", "-", "tracker rosbag2 directory (mcap or sqlite3) to replay"),
     "rate": P(float, 1.0, "-", "playback speed factor (1 = recorded timing)", positive=True),
     "loop": P(bool, False, "-", "start again at the end"),
+    "repeat": P(int, 1, "-", "play the bag this many times, each after the last on the same timeline (loop: "
+                "forever); e.g. to give hand_measures auto, which sizes the hand from the first tracked "
+                "second, a short recording to follow afterwards", 1, 1000),
     "start": P(float, 0.0, "s", "skip this much of the bag", 0.0),
     "topic": P(str, "", "-", "tracker topic of the bag to play (empty: every tracker topic in it, "
                "/tracker/{right,left}/hand_joints interleaved in time and the legacy /tracker/hand_joints)"),

@@ -1,6 +1,6 @@
 """play_node: replays a tracker rosbag2 (mcap or sqlite3), or any topics of a recording, on its recorded timing.
 
-    softhand-play BAG [--rate R] [--loop] [--start S] [--wait-subscribers N] [--wait-for-nodes NODE ...]
+    softhand-play BAG [--rate R] [--loop | --repeat N] [--start S] [--wait-subscribers N] [--wait-for-nodes NODE ...]
                       [--stamps publish|recorded] [--topic T] [--hand right|left]
     softhand-play BAG --all | --topics T [T ...]      (a record_node / ros2 bag recording)
     ros2 run softhand_tracking play_node --ros-args -p bag:=BAG -p rate:=2.0
@@ -93,12 +93,14 @@ def build_parser() -> argparse.ArgumentParser:
                     "one timeline) and an older bag's /tracker/hand_joints as /tracker/{--hand}/hand_joints; "
                     "publishes /clock with the bag time (for use_sim_time). Exits when done. "
                     "With --all or --topics, replay a recording's topics with their recorded QoS.",
-        epilog="ROS parameters of the same names (bag, rate, loop, start, topic, hand, publish_clock, clock_rate, "
+        epilog="ROS parameters of the same names (bag, rate, loop, repeat, start, topic, hand, publish_clock, clock_rate, "
                "wait_subscribers, wait_for_nodes, wait_timeout, stamps, replay_topics, replay_all) work with "
                "--ros-args -p NAME:=VALUE; flags override them.")
     p.add_argument("bag", nargs="?", default=None, help="rosbag2 directory (folder with metadata.yaml)")
     p.add_argument("--rate", type=float, default=None, help="playback speed factor (default 1.0)")
     p.add_argument("--loop", action="store_true", default=None, help="repeat the bag until stopped")
+    p.add_argument("--repeat", type=int, default=None, metavar="N",
+                   help="play the bag N times, one after the other (default 1)")
     p.add_argument("--start", type=float, default=None, metavar="S", help="skip the first S seconds of the bag")
     p.add_argument("--topic", default=None,
                    help="play only this tracker topic of the bag (default: every tracker topic in it)")
@@ -265,7 +267,7 @@ class PlayNode(Node):
         self.get_logger().info(
             f"bag {rec.path} ({rec.storage}): {listing}, "
             f"{(self.stamps[-1] - self.stamps[0]) * 1e-9:.2f} s, rate x{cfg['rate']:g}"
-            + (", looping" if cfg["loop"] else ""))
+            + (", looping" if cfg["loop"] else f", {cfg['repeat']} times" if cfg["repeat"] > 1 else ""))
 
     def _load_recording(self) -> None:
         """Raw replay: the chosen topics' messages, one publisher per topic with its recorded QoS."""
@@ -309,7 +311,7 @@ class PlayNode(Node):
         self.get_logger().info(
             f"bag {rec.path} ({rec.storage}): {len(self.raw_msgs)} messages on {len(self.raw_pubs)} topics, "
             f"{(self.stamps[-1] - self.stamps[0]) * 1e-9:.2f} s, rate x{cfg['rate']:g}"
-            + (", looping" if cfg["loop"] else ""))
+            + (", looping" if cfg["loop"] else f", {cfg['repeat']} times" if cfg["repeat"] > 1 else ""))
 
     # ---------------------------------------------------------------------------------- replay
 
@@ -455,7 +457,7 @@ class PlayNode(Node):
                     next_log = time.monotonic() + 10.0
                     self.get_logger().info(f"published {self.published} messages, bag time "
                                            f"{(bag_ns - t0) * 1e-9:.1f} s")
-            if not self.cfg["loop"]:
+            if not self.cfg["loop"] and loop + 1 >= self.cfg["repeat"]:
                 # let reliable subscribers acknowledge the tail before the publishers go away: a
                 # reliable reader delivers in order, so one lost frame not yet resent holds back
                 # every later one, and dies with this process. The writer resends at its next
@@ -474,7 +476,7 @@ class PlayNode(Node):
 
 def main(args=None) -> None:
     ns, argv = split_cli(build_parser(), args)
-    overrides = {k: getattr(ns, k) for k in ("bag", "rate", "loop", "start", "topic", "hand", "publish_clock",
+    overrides = {k: getattr(ns, k) for k in ("bag", "rate", "loop", "repeat", "start", "topic", "hand", "publish_clock",
                                              "clock_rate", "wait_subscribers", "wait_for_nodes", "stamps",
                                              "replay_topics", "replay_all")}
     rclpy.init(args=argv)

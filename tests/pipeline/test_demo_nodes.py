@@ -210,3 +210,32 @@ def test_handover_through_both_hands(tmp_path):
     miss = np.linalg.norm(ball[1] - (ball[0] + HANDOVER_CARRY))
     print(f"handover through the nodes: ball lifted {100 * summary['ball_lift_m']:.1f} cm, ended "
           f"{100 * miss:.1f} cm from its spot (offline: 0.3 cm)")
+
+
+def test_hand_measures_auto_on_a_real_recording(tmp_path):
+    """sim_node with `hand_measures: auto` on leap_grab (a real Leap Motion recording, 3.3 s),
+    played 3 times in a row (`softhand demo --repeat 3`): the first tracked second sizes the hand
+    to what `softhand calibrate` gives for the same frames (0.1 mm), the fitted hand is placed and
+    simulated (its bones recorded), every frame of the three plays recorded and accepted."""
+    proc = subprocess.run([SOFTHAND, "calibrate", "leap_grab", "--json", "--out", str(tmp_path / "measures.yaml")],
+                          capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    calibrated = json.loads(proc.stdout)
+    params = "sim_node:\n  ros__parameters:\n    hand_measures: auto\n"
+    pfile = tmp_path / "auto.yaml"
+    pfile.write_text(params)
+    out = tmp_path / "auto"
+    proc = subprocess.run([SOFTHAND, "demo", "--bag", "leap_grab", "--repeat", "3", "--params-file", str(pfile),
+                           "--out", str(out), "--no-preview"], capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+    summary = json.loads((out / "summary.json").read_text())
+    hand = summary["hand_measures"]
+    assert hand["hand_measures_source"] == "auto", hand
+    assert abs(hand["palm_length_mm"] - calibrated["palm_length_mm"]) <= 0.1, (hand, calibrated["palm_length_mm"])
+    assert abs(hand["palm_width_mm"] - calibrated["palm_width_mm"]) <= 0.1, (hand, calibrated["palm_width_mm"])
+    assert abs(hand["hand_length_mm"] - calibrated["wrist_to_middle_tip_mm"]) <= 0.1, hand
+    assert summary["messages_per_topic"].get("/hand/right/bones", 0) > 50, summary["messages_per_topic"]
+    assert summary["all_finite"], summary
+    frames = summary["tracker_frames"]
+    assert frames["in_bag"] == 3 * 374, frames  # leap_grab: 374 frames, played three times
+    check_nothing_lost(summary)

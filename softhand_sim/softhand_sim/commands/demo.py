@@ -175,7 +175,7 @@ class ProcessSet:
 
 
 def run_demo(bag, out_dir, rate=1.0, params_file=None, preview=True, startup_timeout=600.0, quiet=False, view=False,
-             legacy_side="right"):
+             legacy_side="right", repeat=1):
     """Run the node set over `bag`; returns the summary dict (also written to out_dir/summary.json).
 
     view: also run `softhand view` in the demo's domain (the live topics for the Foxglove app);
@@ -216,7 +216,7 @@ def run_demo(bag, out_dir, rate=1.0, params_file=None, preview=True, startup_tim
         procs.start("record", [console_script("softhand-record"), *ros, "-p", f"output:={out_dir / 'bag'}"])
         time.sleep(1.0)  # let the recorder discover the nodes' publishers (the tracker's is waited for below)
         say(f"  nodes up after {time.monotonic() - t0:.1f} s; playing {bag.name} at rate {rate}")
-        play = procs.start("play", [console_script("softhand-play"), str(bag), "--rate", str(rate),
+        play = procs.start("play", [console_script("softhand-play"), str(bag), "--rate", str(rate), "--repeat", str(repeat),
                                     "--hand", legacy_side, "--wait-for-nodes", *tracker_subscribers(sides), *ros])
         play.wait()
         if play.returncode != 0:
@@ -228,7 +228,7 @@ def run_demo(bag, out_dir, rate=1.0, params_file=None, preview=True, startup_tim
     from softhand_sim.commands.run_summary import summarize_run
 
     summary = summarize_run(out_dir / "bag", bag_name=bag.name, exit_codes=codes, input_bag=bag,
-                            play_log=out_dir / "logs" / "play.log", legacy_side=legacy_side)
+                            play_log=out_dir / "logs" / "play.log", legacy_side=legacy_side, repeat=repeat)
     (out_dir / "summary.json").write_text(json.dumps(summary, indent=2))
     if preview:
         from softhand_sim.commands.preview import render_preview
@@ -279,6 +279,9 @@ def main(argv=None):
                         help=f"tracker bag directory or a sample name in bags/ (default {DEFAULT_BAG})")
     parser.add_argument("--out", default=None, help="run directory (default runs/<stamp>)")
     parser.add_argument("--rate", type=float, default=1.0, help="playback speed factor (default 1)")
+    parser.add_argument("--repeat", type=int, default=1, metavar="N",
+                        help="play the bag N times in a row (default 1): e.g. a short recording with sim_node's "
+                             "hand_measures: auto, which sizes the hand from the first tracked second")
     parser.add_argument("--hand", choices=SIDES, default="right",
                         help="the hand an old single-hand bag (/tracker/hand_joints) drives (default right); "
                              "two-hand bags name their sides themselves")
@@ -289,10 +292,12 @@ def main(argv=None):
     args = parser.parse_args(argv)
     if args.rate <= 0:
         parser.error(f"--rate must be > 0, got {args.rate}")
+    if args.repeat < 1:
+        parser.error(f"--repeat must be >= 1, got {args.repeat}")
     bag = resolve_bag(args.bag)
     out = Path(args.out) if args.out else REPO_ROOT / "runs" / datetime.now().strftime("%Y%m%d-%H%M%S")
     run_demo(bag, out, rate=args.rate, params_file=args.params_file, preview=not args.no_preview, view=args.view,
-             legacy_side=args.hand)
+             legacy_side=args.hand, repeat=args.repeat)
     return 0
 
 

@@ -187,7 +187,7 @@ def tracking_frame_counts(values: dict) -> dict:
             for key in ("frames_received", "frames_accepted", "frames_rejected") if key in values}
 
 
-def summarize_run(bag_dir, bag_name="", exit_codes=None, input_bag=None, play_log=None, legacy_side="right"):
+def summarize_run(bag_dir, bag_name="", exit_codes=None, input_bag=None, play_log=None, legacy_side="right", repeat=1):
     """The figures of the module docstring for the recording at bag_dir. input_bag: the bag that
     was played (its frame counts); play_log: play_node's log; legacy_side: the hand an old
     single-hand input bag was played as."""
@@ -252,6 +252,8 @@ def summarize_run(bag_dir, bag_name="", exit_codes=None, input_bag=None, play_lo
         if len(ts) > 1 and ts[-1] > ts[0]:
             rates[topic] = (len(ts) - 1) / (ts[-1] - ts[0])
     in_bag = input_frames(input_bag, legacy_side) if input_bag is not None else None
+    if in_bag is not None:  # the bag played `repeat` times (softhand demo --repeat)
+        in_bag = {side: n * repeat for side, n in in_bag.items()}
     hands, latencies, startups = {}, [], []
     for side in SIDES:
         tracker_t, bones_t = times.get(tracker_topic(side), []), times.get(hand_topic(side, "bones"), [])
