@@ -14,9 +14,10 @@ import pytest
 
 
 # Timing over real DDS between processes on a shared 2-core machine: a retry absorbs a stall. Two:
-# on fresh clones the first one or two node-level demos of a session have failed a grasp or frame
-# check (grasp_lift's ball slipped out at 7 cm, twice in a row once) while every later run and
-# every standalone run passed; the cause is not found yet. The least sensitive bags run first.
+# on fresh clones the first one or two node-level demos of a session failed a grasp check
+# (grasp_lift's ball slipped out at 3-7 cm). The likely cause: the undamped engine-side coupling
+# spring, which copies 65 ms or more late drive unstable (docs/DESIGN.md); it is damped now, and
+# the second retry stays for DDS stalls. The least sensitive bags run first.
 pytestmark = [pytest.mark.ros, pytest.mark.slow, pytest.mark.flaky(reruns=2, reruns_delay=2)]
 
 SOFTHAND = str(Path(sys.executable).parent / "softhand")
