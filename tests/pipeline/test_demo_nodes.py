@@ -15,9 +15,10 @@ import pytest
 
 # Timing over real DDS between processes on a shared 2-core machine: a retry absorbs a stall. Two:
 # on fresh clones the first one or two node-level demos of a session failed a grasp check
-# (grasp_lift's ball slipped out at 3-7 cm). The likely cause: the undamped engine-side coupling
-# spring, which copies 65 ms or more late drive unstable (docs/DESIGN.md); it is damped now, and
-# the second retry stays for DDS stalls. The least sensitive bags run first.
+# (grasp_lift's ball slipped out at 3-12 cm). One cause, the undamped engine-side coupling spring
+# that late copies drive unstable, is fixed (docs/DESIGN.md); the other is not: on a cold numba
+# cache world_node's state stream stopped for 0.65 s at the first contact, the copies went stale
+# and the ball fell (README, "What the tests prove"). The least sensitive bags run first.
 pytestmark = [pytest.mark.ros, pytest.mark.slow, pytest.mark.flaky(reruns=2, reruns_delay=2)]
 
 SOFTHAND = str(Path(sys.executable).parent / "softhand")
