@@ -52,13 +52,20 @@ class TopicForwarder:
         view_qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=5,
                               reliability=ReliabilityPolicy.BEST_EFFORT, durability=DurabilityPolicy.VOLATILE)
         self.node = node
-        self.counts = {t: 0 for t in topics}
+        self.counts = {}
         self.channels = {}
+        self.missing = {}  # topic -> type whose package is not installed (tf2_msgs without a C compiler)
         for topic, msgtype in topics.items():
+            try:
+                msg_class = message_class(msgtype)
+            except ValueError:
+                self.missing[topic] = msgtype
+                continue
+            self.counts[topic] = 0
             schema = foxglove.Schema(name=msgtype, encoding="ros2msg", data=ros2msg_schema(msgtype))
             channel = foxglove.Channel(topic, schema=schema, message_encoding="cdr", context=context)
             self.channels[topic] = channel
-            node.create_subscription(message_class(msgtype), topic, self._forward(topic, channel),
+            node.create_subscription(msg_class, topic, self._forward(topic, channel),
                                      LATCHED_QOS if topic in LATCHED_TOPICS else view_qos, raw=True)
 
     def _forward(self, topic, channel):
@@ -82,7 +89,10 @@ def serve(topics, host=DEFAULT_HOST, port=DEFAULT_PORT, ready=None, stop=None, s
     rclpy.init(args=[])
     node = rclpy.create_node("softhand_view")
     forwarder = TopicForwarder(node, topics, context=context)
-    say(f"softhand view: serving {len(topics)} topics on ws://{host}:{server.port} "
+    if forwarder.missing:  # e.g. /tf without tf2_msgs (no C compiler at set-up): the rest is served
+        say(f"softhand view: not serving {', '.join(sorted(forwarder.missing))}: message package not installed "
+            f"({', '.join(sorted(set(forwarder.missing.values())))}; see `make tf2_msgs`)")
+    say(f"softhand view: serving {len(forwarder.counts)} topics on ws://{host}:{server.port} "
         f"(ROS_DOMAIN_ID={os.environ.get('ROS_DOMAIN_ID', '0')}); in the Foxglove app: Open connection -> "
         f"Foxglove WebSocket -> ws://localhost:{server.port}; Ctrl-C stops")
     if ready is not None:
