@@ -265,9 +265,13 @@ class PlayNode(Node):
         listing = ", ".join(f"{per_topic[out]} on {out}" + (f" (recorded as {src})" if src != out else "")
                             for src, out in sorted(renamed.items(), key=lambda kv: kv[1]))
         self.get_logger().info(
-            f"bag {rec.path} ({rec.storage}): {listing}, "
-            f"{(self.stamps[-1] - self.stamps[0]) * 1e-9:.2f} s, rate x{cfg['rate']:g}"
-            + (", looping" if cfg["loop"] else f", {cfg['repeat']} times" if cfg["repeat"] > 1 else ""))
+            f"bag {rec.path} ({rec.storage}): {listing}, " + self._timing_line())
+
+    def _timing_line(self) -> str:
+        """'3.30 s, rate x1, 3 times' of the loaded bag, for the start-up log of either kind of replay."""
+        cfg = self.cfg
+        return (f"{(self.stamps[-1] - self.stamps[0]) * 1e-9:.2f} s, rate x{cfg['rate']:g}"
+                + (", looping" if cfg["loop"] else f", {cfg['repeat']} times" if cfg["repeat"] > 1 else ""))
 
     def _load_recording(self) -> None:
         """Raw replay: the chosen topics' messages, one publisher per topic with its recorded QoS."""
@@ -310,8 +314,7 @@ class PlayNode(Node):
         self.published_by_topic = Counter()
         self.get_logger().info(
             f"bag {rec.path} ({rec.storage}): {len(self.raw_msgs)} messages on {len(self.raw_pubs)} topics, "
-            f"{(self.stamps[-1] - self.stamps[0]) * 1e-9:.2f} s, rate x{cfg['rate']:g}"
-            + (", looping" if cfg["loop"] else f", {cfg['repeat']} times" if cfg["repeat"] > 1 else ""))
+            + self._timing_line())
 
     # ---------------------------------------------------------------------------------- replay
 

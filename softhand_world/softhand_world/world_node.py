@@ -67,8 +67,8 @@ class WorldNode(Node):
         self.rejections = RejectionLog(self.get_logger(), REJECT_LOG_PERIOD)
         self.meter = RateMeter()
         self.step_ms = StepStats(window=DIAG_WINDOW)  # [ms] per engine step
-        self.published = 0  # /world/object_states messages and the stamp of the last: what a recorder
-        self.published_stamp = 0.0  # should hold up to that stamp (tests/pipeline/test_across_hosts.py)
+        self.published = 0  # /world/object_states messages: with published_stamp (the engine time, the
+        # stamp of the last one) what a recorder should hold (tests/pipeline/test_across_hosts.py)
         # Engine step k ends at scheduler time k: the first one at start + dt. late_resyncs in
         # /diagnostics counts the times it fell more than MAX_CATCH_UP_STEPS behind and skipped ahead.
         self.scheduler = FixedRateScheduler(p["engine_rate"], max_catch_up=MAX_CATCH_UP_STEPS,
@@ -120,7 +120,6 @@ class WorldNode(Node):
             self.pub_states.publish(rm.object_states_from_numpy(s.names, s.pose, s.twist, s.accel,
                                                                 rm.stamp_from_seconds(s.stamp)))
             self.published += 1
-            self.published_stamp = s.stamp
 
     def on_markers(self):
         s = self.world.states()
@@ -142,7 +141,7 @@ class WorldNode(Node):
             "stale_copies": ",".join(stale),
             "copy_gaps": sum(c.gaps for c in self.world.copies),
             "late_resyncs": self.scheduler.resyncs,
-            "published": self.published, "published_stamp": f"{self.published_stamp:.6f}",
+            "published": self.published, "published_stamp": f"{self.world.time:.6f}",
             **{f"rejected_{k}": v for k, v in self.rejections.counts.items()},
         }
         level = "warn" if stale or self.rejections.counts else "ok"
