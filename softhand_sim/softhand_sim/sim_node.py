@@ -135,8 +135,9 @@ class SimNode(Node):
         self.hand_topics = [HandTopics(self, side, HAND_CODE[side]) for side in self.runtime.hands]
         for hand in self.hand_topics:
             hand.new_model(self.runtime)
+            # 250 Hz of PoseArrays, taken as CDR bytes and read with numpy (msgs.pose_array_from_cdr)
             self.create_subscription(PoseArray, hand_topic(hand.side, "intermediate_bones"),
-                                     lambda msg, hand=hand: self.on_bones(msg, hand), LATEST_QOS)
+                                     lambda msg, hand=hand: self.on_bones(msg, hand), LATEST_QOS, raw=True)
         self.pub_objects = self.create_publisher(MultiDOFJointTrajectory, "/hand/object_states", STREAM_QOS)
         self.pub_contacts = self.create_publisher(PointCloud2, "/hand/contacts", PUB_QOS)
         self.pub_contact_markers = self.create_publisher(MarkerArray, CONTACT_MARKERS_TOPIC, PUB_QOS)  # viewers
@@ -164,13 +165,13 @@ class SimNode(Node):
         if now - hand.last_target_rx > TARGET_GAP_S:  # counted when the targets come back
             hand.target_gaps += 1
         hand.last_target_rx = now
-        delay = 1e3 * (self.now_s() - rm.stamp_to_seconds(msg.header.stamp))  # clocks in sync
-        self.target_delay_ms.add(delay)
-        if len(self.hand_topics) > 1:
-            hand.target_delay_ms.add(delay)
         try:
-            poses = rm.pose_array_to_numpy(msg)
-            self.runtime.set_bone_targets(poses, rm.stamp_to_seconds(msg.header.stamp), hand=hand.side)
+            poses, stamp_ns, _frame = rm.pose_array_from_cdr(msg)
+            delay = 1e3 * (self.now_s() - stamp_ns * 1e-9)  # clocks in sync
+            self.target_delay_ms.add(delay)
+            if len(self.hand_topics) > 1:
+                hand.target_delay_ms.add(delay)
+            self.runtime.set_bone_targets(poses, stamp_ns * 1e-9, hand=hand.side)
         except ValueError as exc:
             self.reject("intermediate_bones", f"{hand.side}: {exc}")
 
@@ -248,7 +249,7 @@ class SimNode(Node):
             ho = out.hands[hand.side]
             if not ho.entered:  # no target yet: this hand publishes nothing
                 continue
-            bones.append((hand, ho.bone_poses, rm.pose_array_from_numpy(ho.bone_poses, stamp)))
+            bones.append((hand, ho.bone_poses, rm.pose_array_cdr(ho.bone_poses, rm.stamp_to_ns(stamp))))
             if not hand.mesh_sent:  # once per hand model, latched
                 hand.mesh_sent = True
                 rest.append((hand.mesh, hand.mesh_bytes))

@@ -66,7 +66,7 @@ from geometry_msgs.msg import PoseArray
 from rosgraph_msgs.msg import Clock
 
 from softhand_sim.ros.common import PUB_QOS, message_class, split_cli
-from softhand_sim.ros.msgs import stamp_from_ns, stamp_to_ns
+from softhand_sim.ros.msgs import stamp_from_ns
 from softhand_sim.params import ParamError
 from softhand_sim.ros.params import declare_node_params
 from softhand_sim.ros.bagio import (BagError, check_bag_path, header_stamp_ns, mcap_is_closed, read_recording,
@@ -246,12 +246,16 @@ class PlayNode(Node):
         if not keep.any():
             raise BagError(f"start {cfg['start']} s is past the end of bag {rec.path} "
                            f"(duration {(stamps[-1] - stamps[0]) * 1e-9:.3f} s)")
-        self.msgs = []  # (topic, PoseArray) in bag time order, both hands' on one timeline
+        # (topic, CDR bytes) in bag time order, both hands' on one timeline: published as bytes with
+        # the stamp written in (bagio.with_header_stamp); building a PoseArray object per frame and
+        # converting it back was most of this node's CPU. Each is decoded once here to check it.
+        self.msgs = []
         for (_stamp, out, raw), k in zip(frames, keep):
             if not k:
                 continue
             try:
-                self.msgs.append((out, deserialize_message(raw, PoseArray)))
+                deserialize_message(raw, PoseArray)
+                self.msgs.append((out, bytes(raw)))
             except Exception as exc:
                 raise BagError(f"bag {rec.path}: a message for {out} does not decode as {MSGTYPE}: {exc}") from None
         self.stamps = stamps[keep]
@@ -406,15 +410,15 @@ class PlayNode(Node):
         if self.raw_pubs is not None:
             self._timed_replay(list(zip(self.stamps, self.raw_msgs)), self._publish_raw)
         else:
-            recorded = [stamp_to_ns(m.header.stamp) for _topic, m in self.msgs]
+            recorded = [header_stamp_ns(raw) for _topic, raw in self.msgs]
             self._timed_replay(list(zip(self.stamps, zip(self.msgs, recorded))), self._publish_frame)
 
     def _publish_frame(self, item, bag_ns: int, shift: int, stamp_of) -> None:
         """One tracker frame. publish: the bag time of this frame on the run's clock (its capture,
         as a live tracker stamps it); recorded: the bag's header stamp, moved on by the loops."""
-        (topic, msg), rec_ns = item
-        msg.header.stamp = stamp_from_ns(stamp_of(bag_ns) if self.cfg["stamps"] == "publish" else rec_ns + shift)
-        self.pubs[topic].publish(msg)
+        (topic, raw), rec_ns = item
+        self.pubs[topic].publish(with_header_stamp(raw, stamp_of(bag_ns) if self.cfg["stamps"] == "publish"
+                                                   else rec_ns + shift))
         self.published_by_topic[topic] += 1
 
     def _publish_raw(self, item, bag_ns: int, shift: int, stamp_of) -> None:

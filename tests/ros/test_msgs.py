@@ -40,6 +40,37 @@ def test_pose_array_round_trip_through_serialization():
     np.testing.assert_array_equal(rm.pose_array_to_numpy(back), poses)
 
 
+def test_pose_array_cdr_is_what_rclpy_reads_and_writes():
+    """The numpy-built PoseArray CDR (the nodes' hot topics) against rclpy's own serializer, both
+    ways: rclpy decodes ours to the same poses, stamp and frame, ours decodes rclpy's; the lengths
+    are equal (only alignment padding, which rclpy leaves uninitialised, may differ)."""
+    rng = np.random.default_rng(3)
+    for n in (0, 1, 16, 26):
+        for frame in ("world", "", "abc", "tracker_frame"):
+            poses = _random_poses(rng, n)
+            stamp = int(rng.integers(0, 2**31 - 1)) * 1_000_000_000 + int(rng.integers(0, 10**9))
+            ours = rm.pose_array_cdr(poses, stamp, frame)
+            theirs = serialize_message(rm.pose_array_from_numpy(poses, stamp, frame))
+            assert len(ours) == len(theirs)
+            back = deserialize_message(ours, rm.PoseArray)
+            assert (rm.stamp_to_ns(back.header.stamp), back.header.frame_id) == (stamp, frame)
+            np.testing.assert_array_equal(rm.pose_array_to_numpy(back), poses)
+            got, got_stamp, got_frame = rm.pose_array_from_cdr(theirs)
+            assert (got_stamp, got_frame) == (stamp, frame)
+            np.testing.assert_array_equal(got, poses)
+    big_endian = b"\x00\x00\x00\x00" + (7).to_bytes(4, "big") + (5).to_bytes(4, "big") \
+        + (1).to_bytes(4, "big") + b"\x00\x00\x00\x00" + (1).to_bytes(4, "big") + bytes(4) \
+        + np.arange(7, dtype=">f8").tobytes()
+    got, got_stamp, got_frame = rm.pose_array_from_cdr(big_endian)
+    assert (got_stamp, got_frame) == (7_000_000_005, "")
+    np.testing.assert_array_equal(got, np.arange(7.0).reshape(1, 7))
+    for bad, what in ((b"", "bytes"), (ours[:-8], "poses need"), (b"\x00\x01\x00\x00" + bytes(8) + (99).to_bytes(4, "little"), "frame_id")):
+        with pytest.raises(ValueError, match=what):
+            rm.pose_array_from_cdr(bad)
+    with pytest.raises(ValueError, match="non-finite"):
+        rm.pose_array_cdr(np.full((1, 7), np.nan), 0)
+
+
 def test_pose_array_rejects_bad_shape_and_nan():
     """A wrong width or a NaN pose is refused with a message naming the array."""
     with pytest.raises(ValueError, match=r"poses must have shape \(n, 7\)"):

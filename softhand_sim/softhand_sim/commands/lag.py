@@ -225,9 +225,11 @@ def lag_report(path, hand: str = "right", time_base: str = "auto") -> dict:
     tr_stamp, tr_recv, joints = data[tracker]
     report = {"frames": {"recorded": int(len(tr_stamp)), **counts}}
     if time_base == "auto":
-        outs = [data[t][0] for t in layers.values() if t in data]
-        offset = np.median(np.concatenate(outs)) - np.median(tr_stamp) if outs else 0.0
-        time_base = "stamp" if abs(offset) < CLOCK_MISMATCH_S else "receive"
+        # one clock: every topic's stamps sit near the recorder's receive times. (Comparing the
+        # medians of the tracker's and the outputs' stamps instead took a long or repeated run,
+        # whose outputs go on after the last frame, for two clocks.)
+        offsets = [np.median(np.abs(data[t][1] - data[t][0])) for t in (tracker, *layers.values()) if t in data]
+        time_base = "stamp" if max(offsets) < CLOCK_MISMATCH_S else "receive"
     col = 0 if time_base == "stamp" else 1
     report["time_base"] = time_base
     ref = tracked_bones(joints, (tr_stamp, tr_recv)[col], hand)

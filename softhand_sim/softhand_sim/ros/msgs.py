@@ -109,6 +109,60 @@ def pose_array_to_numpy(msg) -> np.ndarray:
     return out
 
 
+# CDR (the bytes on the wire and in bags) of a PoseArray, written and read with numpy. Converting
+# a PoseArray between Python objects and CDR is most of what publishing or taking it costs in
+# rclpy (serialize_message of 16 poses: ~80 us; a publish of the bytes: ~5 us), and the tracking
+# node does it 250 times a second. Layout (XCDR1, offsets after the 4-byte encapsulation header):
+# Header.stamp sec int32, nanosec uint32; frame_id uint32 length (with the NUL), bytes, NUL;
+# aligned to 4: uint32 pose count; aligned to 8: 7 float64 per pose (position x y z, orientation
+# x y z w). rclpy's publish() and take with raw=True take and give exactly these bytes.
+_CDR_LE = b"\x00\x01\x00\x00"
+
+
+def _pad(offset: int, align: int) -> int:
+    return (-offset) % align
+
+
+def pose_array_cdr(poses, stamp_ns: int, frame_id: str = WORLD_FRAME) -> bytes:
+    """CDR bytes of a geometry_msgs/PoseArray of poses (n, 7) [m, quaternion x y z w] stamped
+    `stamp_ns` [ns] (the bytes serialize_message gives for pose_array_from_numpy(...))."""
+    p = _check_rows("poses", poses, 7)
+    sec, nsec = divmod(int(stamp_ns), _NS_PER_S)
+    if not 0 <= sec < 2**31:
+        raise ValueError(f"stamp must be in [0, 2^31) s as builtin_interfaces/Time, got {stamp_ns} ns")
+    name = frame_id.encode() + b"\x00"
+    body = np.array([sec, nsec], dtype="<u4").tobytes() + len(name).to_bytes(4, "little") + name
+    body += bytes(_pad(len(body), 4)) + len(p).to_bytes(4, "little")
+    body += bytes(_pad(len(body), 8)) if len(p) else b""
+    return _CDR_LE + body + p.astype("<f8").tobytes()
+
+
+def pose_array_from_cdr(raw: bytes):
+    """(poses (n, 7) float64, stamp [ns], frame_id) of a PoseArray's CDR bytes (either byte order).
+    ValueError naming what is wrong for bytes that are not a PoseArray."""
+    buf = memoryview(raw)
+    if len(buf) < 16 or buf[0] != 0 or buf[1] not in (0, 1):
+        raise ValueError(f"not a CDR PoseArray: {len(buf)} bytes starting {bytes(buf[:4])!r}")
+    e = "<" if buf[1] == 1 else ">"
+    body = buf[4:]
+    sec, nsec, nlen = np.frombuffer(body, dtype=e + "u4", count=3)
+    sec = int(np.int32(sec))
+    off = 12 + int(nlen)
+    if nlen < 1 or off > len(body):
+        raise ValueError(f"not a CDR PoseArray: frame_id length {int(nlen)} in {len(body)} bytes")
+    frame_id = bytes(body[12:off - 1]).decode(errors="replace")
+    off += _pad(off, 4)
+    if off + 4 > len(body):
+        raise ValueError(f"not a CDR PoseArray: {len(body)} bytes end before the pose count")
+    n = int(np.frombuffer(body, dtype=e + "u4", count=1, offset=off)[0])
+    off += 4
+    off += _pad(off, 8) if n else 0
+    if off + 56 * n > len(body):
+        raise ValueError(f"not a CDR PoseArray: {n} poses need {56 * n} bytes, {len(body) - off} left")
+    poses = np.frombuffer(body, dtype=e + "f8", count=7 * n, offset=off).reshape(n, 7).astype(np.float64)
+    return poses, sec * _NS_PER_S + int(nsec), frame_id
+
+
 # ---------------------------------------------------------------------------------- object states
 
 
