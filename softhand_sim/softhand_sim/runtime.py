@@ -22,6 +22,7 @@ outputs. StepOutput.stages times each part of it (STAGES, wall clock [ms]).
 """
 from __future__ import annotations
 
+from copy import deepcopy
 import time
 from dataclasses import dataclass, field
 
@@ -41,6 +42,7 @@ from softhand_sim.physics.rotations import quat_mul, quat_conj, quat_to_matrix
 from softhand_sim.scene import load_scene
 from softhand_sim.physics.solver import STAGE_FIELDS, Solver
 from softhand_sim.physics.state import State
+from softhand_sim.target_lead import TargetLead
 
 # Divergence guard (robustness): a step is rejected when its state is not finite, when the
 # kinetic energy jumps above this bound [J] (a 0.4 kg hand at 70 m/s: far beyond the ~24 m/s a 1 m
@@ -177,6 +179,8 @@ class SimRuntime:
         self.hand_targets = [None] * H   # latest validated (16,7) targets per hand
         self.hand_stamps = [None] * H
         self.hand_placed = [False] * H
+        # each hand's targets moved to the end of the step, out of contact (target_lead.py)
+        self.leads = [TargetLead(params["target_feed_forward"]) for _ in range(H)]
         self.rejected_steps = 0
         self.steps = 0
         self.last_t = 0.0
@@ -266,6 +270,7 @@ class SimRuntime:
         poses[:, 3:] /= norms[:, None]
         self.hand_targets[h] = poses
         self.hand_stamps[h] = stamp
+        self.leads[h].on_target(poses, stamp)
         self.control.set_hand_targets(self.model, h, poses)
         if not self.hand_placed[h]:
             self.place_hand(poses[0], self.hands[h])
@@ -279,7 +284,7 @@ class SimRuntime:
         """
         saved = (self.state.copy(), self.good_state.copy(), self.control.copy(), list(self.hand_targets),
                  list(self.hand_stamps), list(self.hand_placed), self.steps, self._prev_body_v.copy(),
-                 self.object_targets.copy(), self.contacts.hand_enabled.copy())
+                 self.object_targets.copy(), self.contacts.hand_enabled.copy(), deepcopy(self.leads))
         for h, side in enumerate(self.hands):
             self.set_bone_targets(self.model.body_rest_pose[self.model.hands.bones(h)], hand=side)
         self.step(dt, 0.0)
@@ -287,7 +292,7 @@ class SimRuntime:
             self.display_mesh(hand=side)
         coupling_warm_up()
         (self.state, self.good_state, self.control, self.hand_targets, self.hand_stamps,
-         self.hand_placed, self.steps, self._prev_body_v, self.object_targets, enabled) = saved
+         self.hand_placed, self.steps, self._prev_body_v, self.object_targets, enabled, self.leads) = saved
         self.contacts.reset()
         self.contacts.hand_enabled[:] = enabled
         self.rejected_steps = 0
@@ -354,6 +359,9 @@ class SimRuntime:
         t0 = clock()
         self.last_t = t
         self._update_object_targets(t, dt)
+        for h, lead in enumerate(self.leads):
+            if self.hand_targets[h] is not None:
+                self.control.set_hand_targets(self.model, h, lead.targets_at(t + dt))
         t1 = clock()
         stats = self.solver.step(self.state, self.control, dt)
         t2 = clock()
@@ -384,6 +392,9 @@ class SimRuntime:
             object_poses=s.object_pose.copy(), object_twists=body_v.copy(), object_accels=accels,
             skin_vertices=first.skin_vertices, contacts=self.contacts.output(s.node_x, s.body_x, s.body_q),
             stats=stats, rejected=rejected, warning=warning, node_x=s.node_x, hands=hands)
+        touching = out.contacts["hand"]
+        for h, side in enumerate(self.hands):  # the lead's contact gate
+            self.leads[h].on_contacts(int(np.count_nonzero(touching == HAND_CODE[side])), t + dt)
         t5 = clock()
         # the solver's stages cover its step but for its bookkeeping (a few us): that goes to none
         out.stages = {"targets": 1e3 * (t1 - t0), **{name: getattr(stats, f) for name, f in STAGE_FIELDS},
@@ -409,6 +420,7 @@ class SimRuntime:
         out = {"contacts": int(c.count), "collision_ms": float(c.collision_ms),
                 "rejected_steps": self.rejected_steps, "steps": self.steps,
                 "last_step_stamp": f"{self.last_step_stamp:.6f}",  # with `steps`: a recorder can count what it missed
+                "target_lead_ms": f"{1e3 * self.leads[0].lead:.1f}",  # the first hand's, last step
                 "copy_gaps": sum(c.gaps for c in self.copies),
                 "stale_objects": ",".join(self.stale_objects(self.last_t)) or "-",
                 **measures_diagnostics(self.measures, self.measures_source)}
