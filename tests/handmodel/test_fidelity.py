@@ -71,7 +71,7 @@ def _pose_array(stamp_ns, poses):
 
 
 def test_fidelity_command_on_a_recording(tmp_path):
-    """`softhand fidelity BAG --measures FILE` on a recording whose /hand/right/bones are the kinematic
+    """`softhand fidelity RUN_DIR --measures FILE` on a recording whose /hand/right/bones are the kinematic
     hand's own bones (at the measures in the file), 2 mm off in x: palm, knuckle and tip errors
     2 mm, directions exact."""
     import json
@@ -90,9 +90,9 @@ def test_fidelity_command_on_a_recording(tmp_path):
     for k, s in enumerate(1_700_000_000_000_000_000 + np.round(t * 1e9).astype(np.int64)):
         records.append(("/tracker/right/hand_joints", msgtype, int(s), serialize(_pose_array(int(s), joints[k]), msgtype)))
         records.append(("/hand/right/bones", msgtype, int(s) + 1000, serialize(_pose_array(int(s) + 1000, bones[k]), msgtype)))
-    write_bag(tmp_path / "rec", records)
+    write_bag(tmp_path / "run" / "bag", records)  # laid out as a demo run directory
     write_measures_file(tmp_path / "m.yaml", m)
-    proc = subprocess.run([str(Path(sys.executable).parent / "softhand"), "fidelity", str(tmp_path / "rec"),
+    proc = subprocess.run([str(Path(sys.executable).parent / "softhand"), "fidelity", str(tmp_path / "run"),
                            "--measures", str(tmp_path / "m.yaml")], capture_output=True, text=True, timeout=120)
     assert proc.returncode == 0, proc.stderr[-2000:]
     r = json.loads(proc.stdout.strip().splitlines()[-1])
@@ -100,3 +100,23 @@ def test_fidelity_command_on_a_recording(tmp_path):
     for key in ("palm_mm", "knuckle_mm", "fingertip_mm"):
         assert abs(r[key]["median"] - 2.0) < 0.01 and abs(r[key]["max"] - 2.0) < 0.01, (key, r[key])
     assert r["phalanx_direction_deg"]["max"] < 1e-3
+
+
+def test_fidelity_of_a_recording_reports_lag_orientation_and_frames(tmp_path):
+    """A recording with a known delay and offset (the lag tests' recording: the intermediate
+    layer 8 ms and the simulated one 30 ms behind the tracked motion, then no delay and the
+    simulated palm 5 mm off): `softhand fidelity` finds the lags within 1 ms, the palm offset as
+    the palm error, no palm orientation error, and counts the 200 tracker frames."""
+    from softhand_sim.commands.fidelity import recorded_fidelity
+    from tests.pipeline.test_lag import recording
+
+    delayed = recorded_fidelity(recording(tmp_path / "delayed"), HandMeasures())
+    assert abs(delayed["lag_ms"]["intermediate"]["phalanx"] - 8.0) <= 1.0, delayed["lag_ms"]
+    assert abs(delayed["lag_ms"]["sim"]["phalanx"] - 30.0) <= 1.0, delayed["lag_ms"]
+    assert abs(delayed["lag_ms"]["sim"]["palm"] - 30.0) <= 1.0, delayed["lag_ms"]
+    assert delayed["lag_time_base"] == "stamp" and delayed["frames"]["recorded"] == 200
+    offset = recorded_fidelity(recording(tmp_path / "offset", delays=(0.0, 0.0), palm_offset=(0.0, 0.003, 0.004)),
+                               HandMeasures())
+    assert abs(offset["palm_mm"]["median"] - 5.0) < 0.01 and abs(offset["palm_mm"]["max"] - 5.0) < 0.01
+    assert offset["palm_deg"]["max"] < 1e-3
+    assert abs(offset["lag_ms"]["sim"]["phalanx"]) < 0.5

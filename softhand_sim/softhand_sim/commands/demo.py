@@ -258,6 +258,9 @@ def format_summary(s, out_dir):
           + f"; latency p50 {h['latency_ms_p50']:.1f} ms, p99 {h['latency_ms_p99']:.1f} ms; "
             f"max contacts {h['max_contacts']}"
           for side, h in s.get("hands", {}).items() if len(s.get("hands", {})) > 1),
+        *(f"  {side} hand lag behind the tracked one (phalanx / palm): "
+          + ", ".join(f"{layer} {v['phalanx']:.1f} / {v['palm']:.1f} ms" for layer, v in h["lag_ms"].items())
+          for side, h in s.get("hands", {}).items() if h.get("lag_ms")),
         hand_measures_line(s.get("hand_measures", {})),
         f"  max active contacts: {s.get('max_contacts', 0)}",
         f"  ball: lifted {100 * s.get('ball_lift_m', 0.0):.1f} cm (lifted >= 8 cm: {s.get('ball_lifted', False)})",

@@ -9,7 +9,11 @@ Two sources:
   `auto`: calibrated on the bag's first second, as `softhand calibrate` does).
 Prints the figures of softhand_sim.handmodel.fidelity (palm, knuckle, fingertip position error,
 phalanx direction error, thumb-index tip gap) as JSON: one object, with the figures of each hand
-under "hands" when a recording holds two.
+under "hands" when a recording holds two. A recording's figures also hold what `softhand lag`
+measures (softhand_sim.commands.lag): `lag_ms` (the best time shift of the intermediate and the
+simulated phalanx directions and palm behind the tracked ones), `palm_deg` (the simulated palm's
+orientation error) and `frames` (tracker frames recorded, and received / accepted / rejected by
+the hand's tracking node).
 """
 import argparse
 import json
@@ -61,13 +65,24 @@ def recorded_sides(bag):
 
 
 def recorded_fidelity(bag, measures, side="right"):
-    """The figures of hand `side` in a recording (/tracker/{side}/hand_joints vs /hand/{side}/bones)."""
+    """The figures of hand `side` in a recording (/tracker/{side}/hand_joints vs /hand/{side}/bones),
+    with its lag, palm orientation error and frame counts (module docstring)."""
+    from softhand_sim.commands.lag import lag_report
     from softhand_sim.handmodel.skeleton import build_skeleton
     from softhand_sim.ros.bagio import read_tracker
     tt, tj = _decode(read_tracker(bag, side).payloads)
     order = np.argsort(tt, kind="stable")
     st, sb = _poses(bag, hand_topic(side, "bones"))
-    return fidelity(tt[order], tj[order], st, sb, build_skeleton(measures)["bone_length"])
+    figures = fidelity(tt[order], tj[order], st, sb, build_skeleton(measures)["bone_length"])
+    lag = lag_report(bag, hand=side)
+    figures["lag_ms"] = {layer: {"phalanx": round(lag[layer]["lag_phalanx_ms"], 1),
+                                 "palm": round(lag[layer]["lag_palm_ms"], 1)}
+                         for layer in ("intermediate", "sim") if layer in lag}
+    figures["lag_time_base"] = lag["time_base"]
+    if "palm_deg" in lag.get("sim", {}):
+        figures["palm_deg"] = {k: round(v, 2) for k, v in lag["sim"]["palm_deg"].items()}
+    figures["frames"] = lag["frames"]
+    return figures
 
 
 def offline_fidelity(bag, measures):
@@ -91,7 +106,8 @@ def offline_fidelity(bag, measures):
 
 def main(argv=None):
     parser = argparse.ArgumentParser(prog="softhand fidelity", description=__doc__.splitlines()[0])
-    parser.add_argument("bag", help="a recording with /tracker/{side}/hand_joints and /hand/{side}/bones; with "
+    parser.add_argument("bag", help="a recording with /tracker/{side}/hand_joints and /hand/{side}/bones (or a demo "
+                                    "run directory holding one in bag/); with "
                                     "--offline a tracker bag (directory or name in bags/)")
     parser.add_argument("--hand", choices=SIDES, default=None,
                         help="the hand to score (default: every hand the recording holds; right with --offline)")
@@ -99,7 +115,11 @@ def main(argv=None):
     parser.add_argument("--measures", default=None, help="the simulated hand: a measures file, 'auto' (calibrate on "
                                                          "the bag's first second) or 'default' (default)")
     args = parser.parse_args(argv)
+    from pathlib import Path
+
     from softhand_sim.ros.bagio import BagError
+    if not args.offline and (Path(args.bag) / "bag" / "metadata.yaml").is_file():
+        args.bag = str(Path(args.bag) / "bag")  # a run directory (softhand demo's runs/<stamp>)
     try:
         m = measures_for(args.measures, args.bag)
         if args.offline:

@@ -11,6 +11,8 @@ Measured, not reported by the nodes alone:
 - tracker frames, per hand: in the input bag, recorded, and received / accepted / rejected by that
   hand's tracking node (its last /diagnostics), and published (play_node's log, all hands
   together): nothing may be lost on replay (issue #17);
+- lag per hand (`softhand lag`, softhand_sim.commands.lag): the best time shift of the intermediate
+  and the simulated phalanx directions and palm behind the tracked ones [ms];
 - max active contacts from /hand/contacts (per hand by its `hand` field); ball lift from the
   engine side /world/object_states;
 - the hand measures in use (source default | file | auto, hand and palm sizes [mm], the sizing state
@@ -100,6 +102,17 @@ def _pointcloud_fields(msg):
     from softhand_sim.ros.msgs import pointcloud_to_structured
 
     return pointcloud_to_structured(msg)
+
+
+def _lag_ms(bag_dir, side):
+    """{layer: {phalanx, palm}} lag [ms] of one hand (softhand lag), {} where it cannot be told."""
+    from softhand_sim.commands.lag import lag_report
+    try:
+        report = lag_report(bag_dir, hand=side)
+    except ValueError:
+        return {}
+    return {layer: {"phalanx": report[layer]["lag_phalanx_ms"], "palm": report[layer]["lag_palm_ms"]}
+            for layer in ("intermediate", "sim") if layer in report and "lag_phalanx_ms" in report[layer]}
 
 
 def frame_latency_ms(tracker_t, bones_t):
@@ -272,6 +285,8 @@ def summarize_run(bag_dir, bag_name="", exit_codes=None, input_bag=None, play_lo
             "startup_s": startup_s,
             "max_contacts": max_contacts_hand.get(side, 0),
         }
+        if tracker_t and bones_t:
+            hands[side]["lag_ms"] = _lag_ms(bag_dir, side)
     latency = np.concatenate(latencies) if latencies else np.empty(0)
     startup_s = float(np.nanmax(startups)) if startups and not np.all(np.isnan(startups)) else float("nan")
     size = sum(f.stat().st_size for f in bag_dir.rglob("*") if f.is_file())
