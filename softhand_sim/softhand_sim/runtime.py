@@ -360,7 +360,7 @@ class SimRuntime:
         self.last_t = t
         self._update_object_targets(t, dt)
         for h, lead in enumerate(self.leads):
-            if self.hand_targets[h] is not None:
+            if lead.enabled and self.hand_targets[h] is not None:  # off: the targets as they came
                 self.control.set_hand_targets(self.model, h, lead.targets_at(t + dt))
         t1 = clock()
         stats = self.solver.step(self.state, self.control, dt)
@@ -392,9 +392,9 @@ class SimRuntime:
             object_poses=s.object_pose.copy(), object_twists=body_v.copy(), object_accels=accels,
             skin_vertices=first.skin_vertices, contacts=self.contacts.output(s.node_x, s.body_x, s.body_q),
             stats=stats, rejected=rejected, warning=warning, node_x=s.node_x, hands=hands)
-        touching = out.contacts["hand"]
         for h, side in enumerate(self.hands):  # the lead's contact gate
-            self.leads[h].on_contacts(int(np.count_nonzero(touching == HAND_CODE[side])), t + dt)
+            if self.leads[h].enabled:
+                self.leads[h].on_contacts(int(np.count_nonzero(out.contacts["hand"] == HAND_CODE[side])), t + dt)
         t5 = clock()
         # the solver's stages cover its step but for its bookkeeping (a few us): that goes to none
         out.stages = {"targets": 1e3 * (t1 - t0), **{name: getattr(stats, f) for name, f in STAGE_FIELDS},

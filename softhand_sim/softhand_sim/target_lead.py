@@ -22,6 +22,8 @@ from collections import deque
 
 import numpy as np
 
+from softhand_sim.physics.rotations import integrate_rotation, quat_conj, quat_log, quat_mul
+
 MAX_LEAD = 0.04        # [s] targets are never moved further than this past their stamp
 MAX_GAP = 0.05         # [s] two targets further apart give no velocity (a gap, a restart)
 VELOCITY_WINDOW = 0.02  # [s] the velocity is the change over (at least) this long
@@ -30,39 +32,11 @@ CONTACT_HOLD = 0.2     # [s] no lead this long after the hand last touched somet
 RAMP = 0.05            # [s] the lead's gain goes 0 <-> 1 over this time
 
 
-def _quat_mul(a, b):
-    """Hamilton products of quaternion rows [x y z w] (n, 4)."""
-    ax, ay, az, aw = a.T
-    bx, by, bz, bw = b.T
-    return np.stack([aw * bx + ax * bw + ay * bz - az * by,
-                     aw * by - ax * bz + ay * bw + az * bx,
-                     aw * bz + ax * by - ay * bx + az * bw,
-                     aw * bw - ax * bx - ay * by - az * bz], axis=1)
-
-
-def _quat_log(q):
-    """Rotation vectors (n, 3) of unit quaternions (n, 4), shortest arc."""
-    q = np.where(q[:, 3:4] < 0.0, -q, q)
-    s = np.linalg.norm(q[:, :3], axis=1)
-    angle = 2.0 * np.arctan2(s, q[:, 3])
-    scale = np.where(s > 1e-12, angle / np.maximum(s, 1e-12), 2.0)
-    return q[:, :3] * scale[:, None]
-
-
-def _quat_exp(v):
-    """Unit quaternions (n, 4) of rotation vectors (n, 3)."""
-    angle = np.linalg.norm(v, axis=1)
-    half = 0.5 * angle
-    scale = np.where(angle > 1e-12, np.sin(half) / np.maximum(angle, 1e-12), 0.5)
-    return np.concatenate([v * scale[:, None], np.cos(half)[:, None]], axis=1)
-
-
 def pose_velocity(prev, cur, dt):
     """(n, 6) velocity of the bone-frame origins [m/s] and world angular velocity [rad/s] taking
     poses prev -> cur (n, 7) over dt [s]."""
-    conj = prev[:, 3:] * np.array([-1.0, -1.0, -1.0, 1.0])
-    w = _quat_log(_quat_mul(cur[:, 3:], conj))
-    return np.hstack([(cur[:, :3] - prev[:, :3]) / dt, w / dt])
+    w = np.array([quat_log(quat_mul(c[3:].copy(), quat_conj(p[3:].copy()))) for p, c in zip(prev, cur)])
+    return np.hstack([(cur[:, :3] - prev[:, :3]) / dt, w.reshape(-1, 3) / dt])
 
 
 def extrapolate(poses, vel, tau):
@@ -70,8 +44,8 @@ def extrapolate(poses, vel, tau):
     the world angular velocity)."""
     out = np.empty_like(poses)
     out[:, :3] = poses[:, :3] + tau * vel[:, :3]
-    q = _quat_mul(_quat_exp(tau * vel[:, 3:]), poses[:, 3:])
-    out[:, 3:] = q / np.linalg.norm(q, axis=1, keepdims=True)
+    for b in range(len(poses)):
+        out[b, 3:] = integrate_rotation(poses[b, 3:].copy(), vel[b, 3:].copy(), tau)
     return out
 
 

@@ -27,21 +27,17 @@ from softhand_sim.handmodel.measures import HandMeasures, read_measures_file
 from softhand_sim.topics import POSE_ARRAY, SIDES, hand_topic, tracker_topic
 
 
-def _poses(path, topic, msgtype=POSE_ARRAY):
+def _poses(path, topic):
     """(header times [s], poses (n, m, 7)) of a PoseArray topic."""
     from softhand_sim.ros.bagio import read_topic
-    return _decode(read_topic(path, topic, msgtype).payloads)
+    return _decode(read_topic(path, topic, POSE_ARRAY).payloads)
 
 
-def _decode(payloads, msgtype=POSE_ARRAY):
-    from softhand_sim.ros.bagio import deserialize
-    t, poses = [], []
-    for raw in payloads:
-        msg = deserialize(raw, msgtype)
-        t.append(msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec)
-        poses.append([(p.position.x, p.position.y, p.position.z, p.orientation.x, p.orientation.y,
-                       p.orientation.z, p.orientation.w) for p in msg.poses])
-    return np.asarray(t), np.asarray(poses, dtype=float)
+def _decode(payloads):
+    """(header times [s], poses (n, m, 7)) of PoseArray CDR payloads (ros.msgs.pose_array_from_cdr)."""
+    from softhand_sim.ros.msgs import pose_array_from_cdr
+    rows = [pose_array_from_cdr(raw) for raw in payloads]
+    return np.array([r[1] * 1e-9 for r in rows]), np.array([r[0] for r in rows], dtype=float)
 
 
 def measures_for(spec, bag=None, seconds=1.0):
