@@ -18,6 +18,7 @@ One hand only: sim_node refuses `auto` with two hands (runtime.check_hand_measur
 """
 from __future__ import annotations
 
+import functools
 import threading
 import time
 
@@ -37,10 +38,29 @@ def tracker_topic(side: str) -> str:
 
 def measures_diagnostics(measures, source: str) -> dict:
     """The /diagnostics values that say which hand is simulated: source (default | file | auto),
-    hand length (wrist to middle tip), palm length and width [mm]."""
+    hand length (wrist to middle tip), palm length and width [mm], and every bone's length
+    (`hand_bone_lengths_mm`: 16 numbers, comma-separated, in the order of /hand/{side}/bones), so
+    that a recording alone tells `softhand fidelity` where the simulated fingertips were."""
     return {"hand_measures_source": source, "hand_length_mm": round(hand_length(measures) * 1e3, 1),
             "palm_length_mm": round(measures.palm_length * 1e3, 1),
-            "palm_width_mm": round(measures.palm_width * 1e3, 1)}
+            "palm_width_mm": round(measures.palm_width * 1e3, 1),
+            "hand_bone_lengths_mm": _bone_lengths_text(measures)}
+
+
+@functools.lru_cache(maxsize=8)
+def _bone_lengths_text(measures) -> str:
+    # cached: diagnostics ask every second, the skeleton takes ~1 ms to build
+    from softhand_sim.handmodel.skeleton import build_skeleton
+    return ",".join(f"{1e3 * v:.2f}" for v in build_skeleton(measures)["bone_length"])
+
+
+def bone_lengths_from_text(text: str) -> np.ndarray:
+    """The bone lengths [m] (16,) of a `hand_bone_lengths_mm` value; ValueError if it is not 16
+    positive numbers."""
+    values = np.array([float(v) for v in str(text).split(",")]) * 1e-3
+    if values.shape != (16,) or not np.all(values > 0.0):
+        raise ValueError(f"hand_bone_lengths_mm must be 16 positive numbers, got {text!r}")
+    return values
 
 
 def handover(old, new):

@@ -73,14 +73,18 @@ def _pose_array(stamp_ns, poses):
 def test_fidelity_command_on_a_recording(tmp_path):
     """`softhand fidelity RUN_DIR --measures FILE` on a recording whose /hand/right/bones are the kinematic
     hand's own bones (at the measures in the file), 2 mm off in x: palm, knuckle and tip errors
-    2 mm, directions exact."""
+    2 mm, directions exact. Without --measures the same figures come from the bone lengths
+    sim_node reported in the recording's /diagnostics (an `auto` run's fitted hand), and with the
+    default hand's lengths instead the fingertips are off by more."""
     import json
     import subprocess
     import sys
     from pathlib import Path
 
+    from softhand_sim.hand_sizer import measures_diagnostics
     from softhand_sim.handmodel.measures import write_measures_file
     from softhand_sim.ros.bagio import serialize, write_bag
+    from tests.pipeline.test_run_summary import _diagnostics_record, _sim_status
 
     m = scale_measures(HandMeasures(), 0.85)
     t, joints, bones = motion(HandDims.from_measures(m), n=20)
@@ -90,16 +94,27 @@ def test_fidelity_command_on_a_recording(tmp_path):
     for k, s in enumerate(1_700_000_000_000_000_000 + np.round(t * 1e9).astype(np.int64)):
         records.append(("/tracker/right/hand_joints", msgtype, int(s), serialize(_pose_array(int(s), joints[k]), msgtype)))
         records.append(("/hand/right/bones", msgtype, int(s) + 1000, serialize(_pose_array(int(s) + 1000, bones[k]), msgtype)))
+    stamp = 1_700_000_000_000_000_000 + int(t[-1] * 1e9)
+    sizing = {**measures_diagnostics(HandMeasures(), "auto"), "hand_size_state": "building"}  # before the fit: skipped
+    records += [_diagnostics_record(stamp - 10**6, [_sim_status(sizing)]),
+                _diagnostics_record(stamp, [_sim_status(measures_diagnostics(m, "auto"))])]
     write_bag(tmp_path / "run" / "bag", records)  # laid out as a demo run directory
     write_measures_file(tmp_path / "m.yaml", m)
-    proc = subprocess.run([str(Path(sys.executable).parent / "softhand"), "fidelity", str(tmp_path / "run"),
-                           "--measures", str(tmp_path / "m.yaml")], capture_output=True, text=True, timeout=120)
-    assert proc.returncode == 0, proc.stderr[-2000:]
-    r = json.loads(proc.stdout.strip().splitlines()[-1])
-    assert r["states"] == 20 and r["source"] == "recording"
-    for key in ("palm_mm", "knuckle_mm", "fingertip_mm"):
-        assert abs(r[key]["median"] - 2.0) < 0.01 and abs(r[key]["max"] - 2.0) < 0.01, (key, r[key])
-    assert r["phalanx_direction_deg"]["max"] < 1e-3
+
+    def fidelity_of(*extra):
+        proc = subprocess.run([str(Path(sys.executable).parent / "softhand"), "fidelity", str(tmp_path / "run"),
+                               *extra], capture_output=True, text=True, timeout=120)
+        assert proc.returncode == 0, proc.stderr[-2000:]
+        return json.loads(proc.stdout.strip().splitlines()[-1])
+
+    for r in (fidelity_of("--measures", str(tmp_path / "m.yaml")), fidelity_of()):
+        assert r["states"] == 20 and r["source"] == "recording"
+        for key in ("palm_mm", "knuckle_mm", "fingertip_mm"):
+            assert abs(r[key]["median"] - 2.0) < 0.01 and abs(r[key]["max"] - 2.0) < 0.01, (key, r[key])
+        assert r["phalanx_direction_deg"]["max"] < 1e-3
+    assert r["measures"] == "recorded (auto)", r["measures"]
+    default = fidelity_of("--measures", "default")
+    assert default["measures"] == "default" and default["fingertip_mm"]["max"] > 3.0, default["fingertip_mm"]
 
 
 def test_fidelity_of_a_recording_reports_lag_orientation_and_frames(tmp_path):
@@ -110,13 +125,15 @@ def test_fidelity_of_a_recording_reports_lag_orientation_and_frames(tmp_path):
     from softhand_sim.commands.fidelity import recorded_fidelity
     from tests.pipeline.test_lag import recording
 
-    delayed = recorded_fidelity(recording(tmp_path / "delayed"), HandMeasures())
+    from softhand_sim.handmodel.skeleton import build_skeleton
+    bone_length = build_skeleton(HandMeasures())["bone_length"]
+    delayed = recorded_fidelity(recording(tmp_path / "delayed"), bone_length)
     assert abs(delayed["lag_ms"]["intermediate"]["phalanx"] - 8.0) <= 1.0, delayed["lag_ms"]
     assert abs(delayed["lag_ms"]["sim"]["phalanx"] - 30.0) <= 1.0, delayed["lag_ms"]
     assert abs(delayed["lag_ms"]["sim"]["palm"] - 30.0) <= 1.0, delayed["lag_ms"]
     assert delayed["lag_time_base"] == "stamp" and delayed["frames"]["recorded"] == 200
     offset = recorded_fidelity(recording(tmp_path / "offset", delays=(0.0, 0.0), palm_offset=(0.0, 0.003, 0.004)),
-                               HandMeasures())
+                               bone_length)
     assert abs(offset["palm_mm"]["median"] - 5.0) < 0.01 and abs(offset["palm_mm"]["max"] - 5.0) < 0.01
     assert offset["palm_deg"]["max"] < 1e-3
     assert abs(offset["lag_ms"]["sim"]["phalanx"]) < 0.5

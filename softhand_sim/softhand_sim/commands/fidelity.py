@@ -3,7 +3,9 @@
 Two sources:
 * a recording (`softhand demo` run bag, or any bag with /tracker/{side}/hand_joints and
   /hand/{side}/bones): the tracked frames and the simulated bones of each hand it holds (--hand:
-  one of them), times from their header stamps;
+  one of them), times from their header stamps; the simulated hand's bone lengths are the ones
+  sim_node reported in the recording's /diagnostics (`hand_bone_lengths_mm`, whatever the
+  measures' source: default, file or auto), unless --measures names others;
 * --offline: a tracker bag run through the offline pipeline (softhand_sim.commands.offline,
   deterministic, no ROS) with the default hand or the hand at --measures (a measures file, or
   `auto`: calibrated on the bag's first second, as `softhand calibrate` does).
@@ -60,16 +62,36 @@ def recorded_sides(bag):
     return [s for s in SIDES if counts.get(tracker_topic(s)) and counts.get(hand_topic(s, "bones"))]
 
 
-def recorded_fidelity(bag, measures, side="right"):
+def recorded_measures(bag):
+    """(bone lengths [m] (16,), source) of the hand sim_node simulated in a recording: the last
+    sim_node /diagnostics status naming `hand_bone_lengths_mm` (with `auto`, the fitted hand's once
+    it runs); (None, None) if no status names them (a recording made before they were reported)."""
+    from softhand_sim.hand_sizer import bone_lengths_from_text
+    from softhand_sim.ros.bagio import BagError, deserialize, read_topic
+    from softhand_sim.ros.msgs import status_node
+    try:
+        payloads = read_topic(bag, "/diagnostics", "diagnostic_msgs/msg/DiagnosticArray").payloads
+    except BagError:
+        return None, None
+    for raw in reversed(payloads):
+        for status in deserialize(raw, "diagnostic_msgs/msg/DiagnosticArray").status:
+            values = {kv.key: kv.value for kv in status.values}
+            if status_node(status.name) == "sim_node" and "hand_bone_lengths_mm" in values \
+                    and "hand_size_state" not in values:  # not while `auto` still sizes
+                return bone_lengths_from_text(values["hand_bone_lengths_mm"]), values.get("hand_measures_source", "?")
+    return None, None
+
+
+def recorded_fidelity(bag, bone_length, side="right"):
     """The figures of hand `side` in a recording (/tracker/{side}/hand_joints vs /hand/{side}/bones),
-    with its lag, palm orientation error and frame counts (module docstring)."""
+    with its lag, palm orientation error and frame counts (module docstring); bone_length: the
+    simulated hand's (16,) [m]."""
     from softhand_sim.commands.lag import lag_report
-    from softhand_sim.handmodel.skeleton import build_skeleton
     from softhand_sim.ros.bagio import read_tracker
     tt, tj = _decode(read_tracker(bag, side).payloads)
     order = np.argsort(tt, kind="stable")
     st, sb = _poses(bag, hand_topic(side, "bones"))
-    figures = fidelity(tt[order], tj[order], st, sb, build_skeleton(measures)["bone_length"])
+    figures = fidelity(tt[order], tj[order], st, sb, bone_length)
     lag = lag_report(bag, hand=side)
     figures["lag_ms"] = {layer: {"phalanx": round(lag[layer]["lag_phalanx_ms"], 1),
                                  "palm": round(lag[layer]["lag_palm_ms"], 1)}
@@ -109,17 +131,19 @@ def main(argv=None):
                         help="the hand to score (default: every hand the recording holds; right with --offline)")
     parser.add_argument("--offline", action="store_true", help="run the offline pipeline over the tracker bag first")
     parser.add_argument("--measures", default=None, help="the simulated hand: a measures file, 'auto' (calibrate on "
-                                                         "the bag's first second) or 'default' (default)")
+                                                         "the bag's first second) or 'default'; default: on a "
+                                                         "recording, the bone lengths sim_node reported in it "
+                                                         "(else the default hand), with --offline the default hand")
     args = parser.parse_args(argv)
     from pathlib import Path
 
     from softhand_sim.ros.bagio import BagError
     if not args.offline and (Path(args.bag) / "bag" / "metadata.yaml").is_file():
         args.bag = str(Path(args.bag) / "bag")  # a run directory (softhand demo's runs/<stamp>)
+    measures_used = args.measures or "default"
     try:
-        m = measures_for(args.measures, args.bag)
         if args.offline:
-            figures, build_s = offline_fidelity(args.bag, m)
+            figures, build_s = offline_fidelity(args.bag, measures_for(args.measures, args.bag))
             figures["hand_build_or_load_s"] = round(build_s, 2)
             figures = dict(hand="right", **figures)
         else:
@@ -127,12 +151,20 @@ def main(argv=None):
             if not sides:
                 raise ValueError(f"{args.bag} holds no hand with both /tracker/{{side}}/hand_joints and "
                                  "/hand/{side}/bones")
-            per_hand = {side: recorded_fidelity(args.bag, m, side) for side in sides}
+            bone_length, source = recorded_measures(args.bag) if args.measures is None else (None, None)
+            if bone_length is not None:
+                measures_used = f"recorded ({source})"
+            else:
+                from softhand_sim.handmodel.skeleton import build_skeleton
+                bone_length = build_skeleton(measures_for(args.measures, args.bag))["bone_length"]
+                if args.measures is None:
+                    measures_used = "default (the recording names no bone lengths)"
+            per_hand = {side: recorded_fidelity(args.bag, bone_length, side) for side in sides}
             figures = dict(hand=sides[0], **per_hand[sides[0]]) if len(sides) == 1 else {"hands": per_hand}
     except (BagError, ValueError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 1
     figures = dict(bag=str(args.bag), source="offline pipeline" if args.offline else "recording",
-                   measures=args.measures or "default", **figures)
+                   measures=measures_used, **figures)
     print(json.dumps(figures))
     return 0
