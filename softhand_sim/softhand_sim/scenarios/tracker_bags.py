@@ -191,12 +191,13 @@ def cage_angles():
     return opened, touch, squeeze
 
 
-def cage_report(palm_pose, angles, center=BALL_CENTER):
-    """Per digit (5,): gap [m] of its middle/distal bone capsules to the ball surface (negative:
-    inside) and the unit push direction (5, 3) of that contact on the ball (toward the centre),
-    for the simulated ball at center - CAGE_SAG."""
+def cage_report(palm_pose, angles, center=BALL_CENTER, dims=None, digit_radius=DIGIT_RADIUS):
+    """Per digit (5,): gap [m] of its middle/distal bone capsules (radius digit_radius) to the
+    ball surface (negative: inside) and the unit push direction (5, 3) of that contact on the ball
+    (toward the centre), for the simulated ball at center - CAGE_SAG; dims: the kinematic hand's
+    (HandDims, default: the default hand)."""
     c = np.asarray(center, float) - [0.0, 0.0, CAGE_SAG]
-    joints, bones = forward_kinematics(palm_pose, angles)
+    joints, bones = forward_kinematics(palm_pose, angles, dims)
     gaps, pushes = np.empty(5), np.empty((5, 3))
     for d, tip in enumerate((5, 10, 15, 20, 25)):
         b0 = 1 + 3 * d
@@ -208,17 +209,86 @@ def cage_report(palm_pose, angles, center=BALL_CENTER):
             dist = np.linalg.norm(c - q)
             if best is None or dist < best[0]:
                 best = (dist, (c - q) / dist)
-        gaps[d], pushes[d] = best[0] - BALL_RADIUS - DIGIT_RADIUS, best[1]
+        gaps[d], pushes[d] = best[0] - BALL_RADIUS - digit_radius, best[1]
     return gaps, pushes
 
 
-def _cage_motion(start_offset, lift, t_lift, t_hold, retreat):
+# ---------------------------------------------------------------------------- other hand sizes
+#
+# The placements above were searched for the default hand. A user's hand of another size grasps
+# the same ball with its own placement; `sized_plan` makes it from the default one, so that the
+# fitted-size hands are tested on the same grasps (tests/pipeline/test_offline_grasp.py):
+#   - the ball's place in the palm frame scales with the hand (hand length ratio s), the palm's
+#     thickness too, while the palm still presses the same depth into the (unscaled) ball;
+#   - each digit's touch flexions are scaled about the open pre-shape (factor c, the smallest on a
+#     fine grid) until its capsules (radius DIGIT_RADIUS * s) reach the depth the default hand's
+#     digit reaches at its touch, and likewise its squeeze to the default squeeze's depth (the
+#     default's rule, touch + SQUEEZE x (touch - open), squeezes a small hand less deep: its
+#     open-to-touch range is shorter, and a 15.6 cm hand then let the ball slip out on the lift).
+# A digit that cannot reach a depth within its joint limits keeps the deepest it reaches.
+
+
+def size_ratio(measures) -> float:
+    """Wrist-to-middle-tip length of `measures` over the default hand's."""
+    from softhand_sim.handmodel.fit import hand_length
+    return hand_length(measures) / hand_length(HandMeasures())
+
+
+def _touch_for_depth(palm_pose, opened, touch, goal_gap, dims, digit_radius, digits, center):
+    """touch angles (5, 4) with each digit in `digits` scaled about `opened` to reach goal_gap (5,)."""
+    lo, hi = DIGIT_LIMITS[:, :, 0], DIGIT_LIMITS[:, :, 1]
+    grid = np.linspace(0.0, 2.5, 251)
+    candidates = [np.clip(opened + c * (touch - opened), lo, hi) for c in grid]
+    gaps = np.stack([cage_report(palm_pose, a, center, dims, digit_radius)[0] for a in candidates])
+    out = touch.copy()
+    for d in digits:
+        reached = np.nonzero(gaps[:, d] <= goal_gap[d])[0]
+        out[d] = candidates[reached[0] if reached.size else int(np.argmin(gaps[:, d]))][d]
+    return out
+
+
+def sized_plan(kind: str, measures=None):
+    """(palm pose (7,) for the ball resting at BALL_CENTER, (open, touch, squeeze) angles (5, 4))
+    of grasp `kind` ('cage' | 'pinch') for the hand at `measures` (None: the default hand, whose
+    plan is returned unchanged); see the block comment above."""
+    if kind == "cage":
+        pose, (opened, touch, _), digits = cage_palm_pose(), cage_angles(), range(5)
+        ball_in_palm, squeeze_rule = np.array([*CAGE_BALL_IN_PALM, -(BALL_RADIUS + PALM_VENTRAL - CAGE_PALM_PRESS)]), CAGE_SQUEEZE
+    elif kind == "pinch":
+        from softhand_sim.scenarios.contact import PINCH_SQUEEZE
+        (opened, touch, _), digits = pinch_angles(), (0, 1)
+        pose = np.r_[BALL_CENTER - [0.0, 0.0, CAGE_SAG] - quat_to_matrix(PALM_DOWN) @ PINCH_BALL_IN_PALM, PALM_DOWN]
+        ball_in_palm, squeeze_rule = np.asarray(PINCH_BALL_IN_PALM, float), PINCH_SQUEEZE
+    else:
+        raise ValueError(f"kind must be 'cage' or 'pinch', got {kind!r}")
+    squeeze = np.clip(touch + squeeze_rule * (touch - opened), DIGIT_LIMITS[:, :, 0], DIGIT_LIMITS[:, :, 1])
+    if measures is None or measures == HandMeasures():
+        return pose, (opened, touch, squeeze)
+    s = size_ratio(measures)
+    goal, goal_squeeze = cage_report(pose, touch)[0], cage_report(pose, squeeze)[0]  # the default hand's gaps
+    rot = quat_to_matrix(pose[3:])
+    c = BALL_CENTER - [0.0, 0.0, CAGE_SAG]
+    scaled = ball_in_palm * s
+    if kind == "cage":  # the palm skin still presses CAGE_PALM_PRESS into the ball's top
+        scaled[2] = -(BALL_RADIUS + s * PALM_VENTRAL - CAGE_PALM_PRESS)
+    sized_pose = np.r_[c - rot @ scaled, pose[3:]]
+    dims = HandDims.from_measures(measures)
+    sized_touch = _touch_for_depth(sized_pose, opened, touch, goal, dims, s * DIGIT_RADIUS, digits, BALL_CENTER)
+    sized_squeeze = _touch_for_depth(sized_pose, opened, sized_touch, goal_squeeze, dims, s * DIGIT_RADIUS, digits,
+                                     BALL_CENTER)
+    return sized_pose, (opened, sized_touch, sized_squeeze)
+
+
+def _cage_motion(start_offset, lift, t_lift, t_hold, retreat, measures=None):
     """Keyframes of a caging grasp: from start_offset above/beside the grasp, come down with the
     digits open, close them onto the ball (cage), squeeze, lift `lift` [m] in t_lift [s], hold
-    t_hold [s], open the digits (the ball drops), retreat by `retreat` [m]."""
-    pose = cage_palm_pose()
+    t_hold [s], open the digits (the ball drops), retreat by `retreat` [m]. measures: a hand of
+    another size (sized_plan), None the default hand."""
+    if measures is None:
+        pose, (opened, touch, squeeze) = cage_palm_pose(), cage_angles()
+    else:
+        pose, (opened, touch, squeeze) = sized_plan("cage", measures)
     g, q = pose[:3], pose[3:]
-    opened, touch, squeeze = cage_angles()
     above = g + [0.0, 0.0, 0.06]
     up = g + [0.0, 0.0, lift]
     k = Keyframes()
@@ -254,14 +324,16 @@ def grasp_lift():
     return _cage_motion(np.array([-0.15, 0.10, 0.20]), GRASP_LIFT, 2.0, GRASP_HOLD, 0.05)
 
 
-def squeeze():
-    """Cage the ball, squeeze it on the table (no lift), ease back to touch, open."""
-    return _cage_motion(np.array([-0.10, -0.05, 0.18]), 0.0, 0.0, 1.0, 0.05)
+def squeeze(measures=None):
+    """Cage the ball, squeeze it on the table (no lift), ease back to touch, open (a hand of
+    another size: `measures`, sized_plan)."""
+    return _cage_motion(np.array([-0.10, -0.05, 0.18]), 0.0, 0.0, 1.0, 0.05, measures)
 
 
-def grasp_short():
-    """The caging grasp with a short lift (12 cm in 1.5 s) and 1 s hold, then release."""
-    return _cage_motion(None, 0.12, 1.5, 1.0, 0.0)
+def grasp_short(measures=None):
+    """The caging grasp with a short lift (12 cm in 1.5 s) and 1 s hold, then release (a hand of
+    another size: `measures`, sized_plan)."""
+    return _cage_motion(None, 0.12, 1.5, 1.0, 0.0, measures)
 
 
 # ---------------------------------------------------------------------------- thumb-index pinch
@@ -275,10 +347,14 @@ PINCH_LIFT = 0.12   # [m] wrist lift of pinch_lift (the ball rises ~2 cm less: t
 PINCH_HOLD = 3.0    # [s]
 
 
-def pinch_lift():
-    opened, touch, squeeze = pinch_angles()
-    q = PALM_DOWN
-    wrist = BALL_CENTER - [0.0, 0.0, CAGE_SAG] - quat_to_matrix(q) @ PINCH_BALL_IN_PALM
+def pinch_lift(measures=None):
+    if measures is None:
+        opened, touch, squeeze = pinch_angles()
+        q = PALM_DOWN
+        wrist = BALL_CENTER - [0.0, 0.0, CAGE_SAG] - quat_to_matrix(q) @ PINCH_BALL_IN_PALM
+    else:  # a hand of another size (sized_plan)
+        pose, (opened, touch, squeeze) = sized_plan("pinch", measures)
+        wrist, q = pose[:3], pose[3:]
     up = wrist + [0.0, 0.0, PINCH_LIFT]
     k = Keyframes().add(0.0, wrist + [0.0, 0.0, 0.08], opened, q).add(1.5, wrist, opened, q)
     k.add(2.5, wrist, touch, q).add(3.0, wrist, squeeze, q).add(3.3, wrist, squeeze, q)
@@ -410,6 +486,19 @@ SCENARIOS = {
     "large_hand": Scenario(lambda: size_check(LARGE_HAND), 100.0, seed=8, measures=LARGE_HAND),
 }
 
+# The object tests at the fitted sizes (tests/pipeline/test_offline_grasp.py): the sample bags'
+# motions made by the small and the large hand, placed for that size (sized_plan); no bag files.
+# The small hand's caging grasp is not among them: scaled from the default's, its pads meet the
+# 8 cm ball nearer its equator (upward push 0.14-0.27 against the default's 0.35-0.47) and the ball
+# slips out on the lift; a hand that small needs a cage searched for it.
+SIZED_SCENARIOS = {
+    f"{name}@{size}": Scenario(lambda f=factory, m=measures: f(m), SCENARIOS[name].rate, seed=SCENARIOS[name].seed,
+                               measures=measures)
+    for name, factory in (("grasp_short", grasp_short), ("squeeze", squeeze), ("pinch_lift", pinch_lift),
+                          ("press_table", lambda m: press_table()))
+    for size, measures in (("small", SMALL_HAND), ("large", LARGE_HAND))
+    if (name, size) not in {("grasp_short", "small"), ("squeeze", "small")}}
+
 TIMING_JITTER = 0.0015   # [s] uniform +- jitter of each capture time around the nominal period
 POSITION_NOISE = 0.0015  # [m] std of white noise per joint coordinate
 
@@ -420,9 +509,10 @@ def sample(name: str, noise: bool = True):
     Capture times: k / rate plus uniform jitter, dropping those inside the scenario's gap.
     `joints` has the position noise (orientations are the clean ones); `clean_joints` has none.
     """
-    if name not in SCENARIOS:
-        raise ValueError(f"unknown scenario {name!r}; known: {', '.join(SCENARIOS)}")
-    sc = SCENARIOS[name]
+    known = {**SCENARIOS, **SIZED_SCENARIOS}
+    if name not in known:
+        raise ValueError(f"unknown scenario {name!r}; known: {', '.join(known)}")
+    sc = known[name]
     rng = np.random.default_rng(sc.seed)
     motion = sc.motion()
     period = 1.0 / sc.rate
