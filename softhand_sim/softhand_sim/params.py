@@ -250,6 +250,10 @@ RECORD = {
                       0.05, 3600.0),
     "discovery_period": P(float, 0.2, "s", "look for newly published wanted topics this often", 0.01, 60.0),
     "stamp_source": P(str, "receive", "-", "bag timestamp of each message", choices=("receive", "header")),
+    "diagnostics_rate": P(float, 1.0, "Hz", "how often /diagnostics reports what is recorded and each hand's "
+                          "live lag behind the tracked hand (softhand_sim/live_lag.py)", 0.01, 100.0),
+    "live_lag": P(bool, True, "-", "measure each hand's lag from the tracker, intermediate and bones topics "
+                  "recorded (about 50 ms of CPU per hand per report)"),
 }
 
 SCHEMA = {

@@ -36,6 +36,14 @@ best effort, transient local when all are. Messages are taken raw (CDR bytes, ne
 deserialized) and written with the receive time (node clock: sim time under use_sim_time) or,
 with stamp_source=header, the header stamp of messages that have one.
 
+Live lag: with `live_lag` on (the default), the recorder, which hears every hand's tracker frames,
+intermediate bones and simulated bones, keeps the last 2 s of each and reports in /diagnostics
+(status `record_node: recording`, at `diagnostics_rate`) how far each layer trails the tracked hand,
+as `softhand lag` measures a finished recording (softhand_sim/live_lag.py): `{side}_sim_lag_ms`,
+`{side}_sim_lag_palm_ms`, `{side}_intermediate_lag_ms` (NaN while the hand hardly moves), beside the
+messages and bytes written. It records its own /diagnostics, so the lags are in the bag (the
+Foxglove layout plots them).
+
 Stopping: SIGINT or SIGTERM ends spin; close() writes the pending chunk, the summary and
 metadata.yaml, so every message that reached a callback is in the bag.
 SIGKILL cannot be caught: the mcap then has no summary and no metadata.yaml, but every chunk
@@ -54,8 +62,10 @@ import time
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
-from softhand_sim.ros.common import LATCHED_QOS, PUB_QOS, message_class, run_node, split_cli
-from softhand_sim.topics import HEAVY_TOPICS, LATCHED_TOPICS, POSE_ARRAY, TOPIC_TYPES, TRACKER_TOPICS
+from softhand_sim.ros.common import LATCHED_QOS, PUB_QOS, DiagnosticsPublisher, message_class, run_node, split_cli
+from softhand_sim.ros.msgs import diagnostic_name, pose_array_from_cdr
+from softhand_sim.topics import (HEAVY_TOPICS, LATCHED_TOPICS, POSE_ARRAY, SIDES, TOPIC_TYPES, TRACKER_TOPICS,
+                                 hand_topic, tracker_topic)
 from softhand_sim.params import ParamError
 from softhand_sim.ros.params import declare_node_params
 from softhand_sim.ros.bagio import (BagError, add_topic, flush_chunk, header_stamp_ns, known_type, open_writer,
@@ -142,6 +152,15 @@ class RecordNode(Node):
         self.create_timer(cfg["discovery_period"], self._discover)
         self.create_timer(cfg["flush_period"], lambda: flush_chunk(self.writer))
         self.create_timer(cfg["progress_period"], self._progress)
+        self.live_lag = {}  # side -> LiveLag, made at the side's first message (live_lag.py)
+        self.lag_feeds = {}  # topic -> (side, layer) for the topics the live lag reads
+        if cfg["live_lag"]:
+            for side in SIDES:
+                self.lag_feeds.update({tracker_topic(side): (side, "tracked"),
+                                       hand_topic(side, "intermediate_bones"): (side, "intermediate"),
+                                       hand_topic(side, "bones"): (side, "sim")})
+        DiagnosticsPublisher(self, self.collect_diagnostics, period=1.0 / cfg["diagnostics_rate"],
+                             name=diagnostic_name(self.get_name(), "recording"))
         self.get_logger().info(f"recording into {output}: {', '.join(self.wanted)}")
         self._discover()
 
@@ -250,8 +269,34 @@ class RecordNode(Node):
             self.writer.write(conn, stamp, raw)
             self.counts[topic] += 1
             self.bytes += len(raw)
+            if feed is not None:
+                self._feed_lag(feed, raw)
 
+        feed = self.lag_feeds.get(topic)
         return on_message
+
+    def _feed_lag(self, feed, raw: bytes) -> None:
+        """A tracker frame or a layer's bones into that hand's LiveLag (by header stamp)."""
+        side, layer = feed
+        try:
+            poses, stamp_ns, _frame = pose_array_from_cdr(raw)
+        except ValueError:
+            return  # not ours to judge: recorded as it came
+        if side not in self.live_lag:
+            from softhand_sim.live_lag import LiveLag
+            self.live_lag[side] = LiveLag(hand=side)
+        if layer == "tracked":
+            self.live_lag[side].add_frame(stamp_ns * 1e-9, poses)
+        elif poses.shape == (16, 7):
+            self.live_lag[side].add(layer, stamp_ns * 1e-9, poses)
+
+    def collect_diagnostics(self):
+        """What is recorded, and each hand's live lag ({side}_sim_lag_ms, ...; module doc)."""
+        values = {"messages": sum(self.counts.values()), "megabytes": round(self.bytes / 1e6, 2),
+                  "topics": len(self.conns)}
+        for side, lag in self.live_lag.items():
+            values.update({f"{side}_{key}": value for key, value in lag.report().items()})
+        return values, "ok", f"recording into {self.output}"
 
     # --------------------------------------------------------------------------------- logging
 

@@ -8,6 +8,7 @@ zero while the hand holds the ball), and the preview pictures are written.
 import json
 import re
 
+import numpy as np
 import pytest
 from visualization_msgs.msg import Marker
 
@@ -73,6 +74,8 @@ def check_run_for_viewing(out, repo_root):
     series = {}
     for key, cfg in layout["configById"].items():
         for p in cfg.get("paths", []) if key.startswith("Plot!") else []:
+            if p["label"].startswith("left "):
+                continue  # a right-hand run: the left hand's lines stay empty
             topic = p["value"].split(".")[0]
             values = [float(v) for msg in read_topic(bag, topic) for v in evaluate_path(p["value"], msg)]
             assert len(values) >= 3, f"{p['value']}: {len(values)} values in the recording"
@@ -81,6 +84,12 @@ def check_run_for_viewing(out, repo_root):
     assert max(force) > 0.1 and min(force) == 0.0, (min(force), max(force))  # touching, and not
     step = [v for v in series["sim step p50 [ms]"] if v == v]  # 'nan' until the first step
     assert len(step) >= 3 and all(0.0 < v < 1000.0 for v in step)
+    # the live lag (record_node): NaN while the hand is still, else within the searched range and
+    # the intermediate layer ahead of the simulated hand on average
+    sim_lag = [v for v in series["right sim lag [ms]"] if v == v]
+    inter_lag = [v for v in series["right intermediate lag [ms]"] if v == v]
+    assert len(sim_lag) >= 2 and all(-40.0 <= v <= 160.0 for v in sim_lag + inter_lag), (sim_lag, inter_lag)
+    assert np.median(inter_lag) < np.median(sim_lag), (inter_lag, sim_lag)
 
     assert (out / "preview.png").stat().st_size > 10_000 and (out / "preview.gif").stat().st_size > 10_000
 
@@ -88,8 +97,6 @@ def check_run_for_viewing(out, repo_root):
 def test_preview_camera_frames_the_run_with_the_table_and_the_ground():
     """camera_frame (one frame for every panel) holds every point of the run and, below it in the
     picture, the table's front edge and the ground in front of the table (outside its footprint)."""
-    import numpy as np
-
     from softhand_sim.commands.preview import CAMERA_VIEW, _inside_static_footprint, camera_frame
     from softhand_sim.handmodel.render import view_matrix
     from softhand_sim.scene import load_scene

@@ -128,7 +128,11 @@ def test_record_exact_counts_and_schemas(ros_env, tmp_path, sig):
     # rosbags: counts and content order
     with Reader(out) as reader:
         counts = {c.topic: c.msgcount for c in reader.connections}
-        assert counts == {**{t: n for t in TYPES}, "/hand/right/skin_mesh": 1}
+    # /diagnostics also holds the recorder's own reports ("record_node: recording", at 1 Hz)
+    diags = [deserialize(raw, "diagnostic_msgs/msg/DiagnosticArray").status[0].name
+             for raw in read_topic(out, "/diagnostics", "diagnostic_msgs/msg/DiagnosticArray").payloads]
+    assert diags.count("test") == n and set(diags) <= {"test", "record_node: recording"}, set(diags)
+    assert {**counts, "/diagnostics": diags.count("test")} == {**{t: n for t in TYPES}, "/hand/right/skin_mesh": 1}
     assert assert_well_formed_mcap(out) == counts
     bones = read_topic(out, "/hand/right/bones", "geometry_msgs/msg/PoseArray")
     xs = [rm.pose_array_to_numpy(deserialize(raw, bones.msgtype))[0, 0] for raw in bones.payloads]

@@ -72,10 +72,11 @@ def _angle(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.arctan2(cross, np.sum(a * b, axis=-1))
 
 
-def _interp(ref: Series, t: np.ndarray):
+def _interp(ref: Series, t: np.ndarray, ref_dirs: np.ndarray | None = None):
     """Tracked phalanx directions (m, 15, 3), palm positions (m, 3), palm quaternions (m, 4) at times
     t (m,), and a mask of the times that lie inside the tracked series between frames at most
-    MAX_GAP_S apart (values elsewhere are meaningless)."""
+    MAX_GAP_S apart (values elsewhere are meaningless). ref_dirs: the tracked phalanx directions
+    (n, 15, 3) if already computed (the search calls this once per shift)."""
     i = np.searchsorted(ref.t, t, side="right")
     ok = (i > 0) & (i < ref.t.size)
     i = np.clip(i, 1, ref.t.size - 1)
@@ -83,7 +84,11 @@ def _interp(ref: Series, t: np.ndarray):
     ok &= (t1 - t0) <= MAX_GAP_S
     w = np.clip((t - t0) / np.maximum(t1 - t0, 1e-12), 0.0, 1.0)
     p0, p1 = ref.poses[i - 1], ref.poses[i]
-    dirs = (1 - w)[:, None, None] * quat_rotate_x(p0[:, 1:, 3:]) + w[:, None, None] * quat_rotate_x(p1[:, 1:, 3:])
+    if ref_dirs is None:
+        d0, d1 = quat_rotate_x(p0[:, 1:, 3:]), quat_rotate_x(p1[:, 1:, 3:])
+    else:
+        d0, d1 = ref_dirs[i - 1], ref_dirs[i]
+    dirs = (1 - w)[:, None, None] * d0 + w[:, None, None] * d1
     dirs /= np.linalg.norm(dirs, axis=-1, keepdims=True)
     palm = (1 - w)[:, None] * p0[:, 0, :3] + w[:, None] * p1[:, 0, :3]
     q0, q1 = p0[:, 0, 3:], p1[:, 0, 3:]
@@ -124,11 +129,12 @@ def layer_lag(ref: Series, out: Series, shift_range_ms=SHIFT_RANGE_MS) -> dict:
     for s in (lo, hi, 0.0):
         common &= _interp(ref, out.t - 1e-3 * s)[3]
     t, cache = out.t[common], {}
+    ref_dirs = quat_rotate_x(ref.poses[:, 1:, 3:])
 
     def cost(s):
         """(phalanx, palm) mean squared error at shift s [ms]; NaN where too few samples compare."""
         if s not in cache:
-            dirs, palm, _, ok = _interp(ref, t - 1e-3 * s)
+            dirs, palm, _, ok = _interp(ref, t - 1e-3 * s, ref_dirs)
             cache[s] = (np.nan, np.nan) if ok.sum() < 0.9 * t.size else (
                 np.mean(_angle(out_dirs[common][ok], dirs[ok]) ** 2),
                 np.mean(np.sum((out_palm[common][ok] - palm[ok]) ** 2, axis=-1)))

@@ -1,0 +1,110 @@
+"""LiveLag: how far the intermediate and the simulated hand trail the tracked hand, while running.
+
+    lag = LiveLag(hand="right")
+    lag.add_frame(stamp, joints)                # each tracker frame (26, 3|7): the adapter's bones
+    lag.add("intermediate", stamp, poses)       # each /hand/{side}/intermediate_bones (16, 7)
+    lag.add("sim", stamp, poses)                # each /hand/{side}/bones
+    lag.report()  -> {"intermediate_lag_ms": ..., "sim_lag_ms": ..., "sim_lag_palm_ms": ...}
+
+All three are stamped on one clock (docs/INTERFACE.md "Stamps and clocks"): tracker frames with
+their capture time, the layers with the time of their state. record_node, which hears all three,
+keeps the last WINDOW_S of each and, once per /diagnostics report, aligns each layer with the
+tracked bones the way `softhand lag` aligns a recording (softhand_sim.commands.lag.layer_lag: the
+time shift that best aligns the phalanx directions, and the palm position), so the lag can be
+watched live (the Foxglove layout plots it) as well as measured afterwards.
+
+A lag is only defined while the hand moves: a window in which the tracked phalanx directions spread
+less than MIN_TURN_RAD from their mean (90th percentile, median over the bones, after a moving
+average over SMOOTH frames: tracker noise of 1.5 mm alone spreads them about 4 degrees) reports
+NaN, and likewise the palm's lag when the palm spreads less than MIN_TRAVEL_M. The intermediate
+layer (250 Hz) is kept at INTERMEDIATE_HZ, enough for a lag found to the millisecond by the
+search's interpolation of the tracked frames, at a quarter of the cost.
+"""
+from __future__ import annotations
+
+from collections import deque
+
+import numpy as np
+
+from softhand_sim.commands.lag import Series, layer_lag, quat_rotate_x
+
+WINDOW_S = 2.0          # [s] the stretch of each layer aligned per report
+MIN_TURN_RAD = 0.1      # [rad] spread of the tracked phalanx directions over the window
+SMOOTH = 7              # tracked frames averaged before the spread is taken
+MIN_TRAVEL_M = 0.01     # [m] spread of the tracked palm position over the window
+INTERMEDIATE_HZ = 60.0  # [Hz] intermediate bones kept at most this often
+SHIFT_RANGE_MS = (-40.0, 160.0)  # [ms] lags searched (the recording tool searches -60..250)
+LAYERS = ("tracked", "intermediate", "sim")
+
+
+def spread(ref: Series) -> tuple[float, float]:
+    """(phalanx spread [rad], palm spread [m]) of a window of tracked bones (module doc)."""
+    dirs = quat_rotate_x(ref.poses[:, 1:, 3:])                       # (n, 15, 3)
+    if len(dirs) > SMOOTH:  # a moving average first: noise alone then spreads them ~4 deg, not ~9
+        kernel = np.ones(SMOOTH) / SMOOTH
+        dirs = np.apply_along_axis(lambda x: np.convolve(x, kernel, mode="valid"), 0, dirs)
+        dirs /= np.linalg.norm(dirs, axis=-1, keepdims=True)
+    mean = dirs.mean(axis=0)
+    mean /= np.linalg.norm(mean, axis=-1, keepdims=True)
+    angles = np.arccos(np.clip(np.sum(dirs * mean, axis=-1), -1.0, 1.0))
+    palm = ref.poses[:, 0, :3]
+    return (float(np.median(np.percentile(angles, 90, axis=0))),
+            float(np.percentile(np.linalg.norm(palm - palm.mean(axis=0), axis=-1), 90)))
+
+
+class LiveLag:
+    """The last WINDOW_S of one hand's tracked, intermediate and simulated bones, and their lags."""
+
+    def __init__(self, hand: str = "right", window_s: float = WINDOW_S):
+        from softhand_tracking.adapter import AdapterConfig, TrackerAdapter
+        self.adapter = TrackerAdapter(AdapterConfig(hand=hand))  # the tracking node's default conversion
+        self.window_s = float(window_s)
+        self._data = {layer: deque() for layer in LAYERS}
+
+    def add_frame(self, t: float, joints) -> None:
+        """A tracker frame (26, 3|7) captured at t [s]; one the adapter rejects is left out."""
+        poses = self.adapter.convert(np.asarray(joints, dtype=np.float64)[:, :3])
+        if poses is not None:
+            self.add("tracked", t, poses)
+
+    def add(self, layer: str, t: float, poses) -> None:
+        """Bones (16, 7) of `layer` at time t [s]. A sample older than the layer's last is dropped;
+        one older by more than the window (a replay restarted its clock) starts the layer afresh."""
+        buf = self._data[layer]
+        if buf and t <= buf[-1][0]:
+            if t >= buf[-1][0] - self.window_s:
+                return
+            buf.clear()
+        if layer == "intermediate" and buf and t - buf[-1][0] < 1.0 / INTERMEDIATE_HZ:
+            return
+        buf.append((float(t), np.array(poses, dtype=np.float64)))
+        while buf and buf[0][0] < t - self.window_s:
+            buf.popleft()
+
+    def _series(self, layer: str) -> Series | None:
+        buf = self._data[layer]
+        if len(buf) < 3:
+            return None
+        return Series(np.array([t for t, _ in buf]), np.stack([p for _, p in buf]))
+
+    def report(self) -> dict:
+        """intermediate_lag_ms (phalanx directions), sim_lag_ms (phalanx directions) and
+        sim_lag_palm_ms [ms]; NaN where a layer has no samples or the hand hardly moved."""
+        out = {"intermediate_lag_ms": float("nan"), "sim_lag_ms": float("nan"), "sim_lag_palm_ms": float("nan")}
+        ref = self._series("tracked")
+        if ref is None:
+            return out
+        turn, travel = spread(ref)
+        if turn < MIN_TURN_RAD and travel < MIN_TRAVEL_M:
+            return out
+        for layer, (key, palm_key) in (("intermediate", ("intermediate_lag_ms", None)),
+                                       ("sim", ("sim_lag_ms", "sim_lag_palm_ms"))):
+            series = self._series(layer)
+            if series is None:
+                continue
+            r = layer_lag(ref, series, SHIFT_RANGE_MS)
+            if turn >= MIN_TURN_RAD:
+                out[key] = round(r["lag_phalanx_ms"], 1)
+            if palm_key and travel >= MIN_TRAVEL_M:
+                out[palm_key] = round(r["lag_palm_ms"], 1)
+        return out
