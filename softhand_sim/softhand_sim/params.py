@@ -182,6 +182,10 @@ TRACKING = {
                      positive=True),
     "tracker_to_world": P(list, [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0], "m, quaternion",
                           "tracker->world transform [px py pz qx qy qz qw]", size=7),
+    "hand_measures": P(str, "default", "-", "the intermediate bones' masses and centres of mass: 'default' (the "
+                       "19 cm hand), a measures file written by `softhand calibrate` (as sim_node's), or 'auto': "
+                       "the first second of valid tracker frames is fitted (as sim_node's auto) and the loop "
+                       "takes that hand's bones from then on"),
     "min_bone_length": P(float, 0.005, "m", "shorter tracked bones reject the frame", 0.0),
     "max_bone_length": P(float, 0.15, "m", "longer tracked bones reject the frame", positive=True),
     "diagnostics_rate": P(float, 1.0, "Hz", "rate of /diagnostics", positive=True),

@@ -106,6 +106,15 @@ class BoneInertia:
     source: str = "handmodel"
 
 
+def bone_inertia_for(measures) -> BoneInertia:
+    """Masses and inertias of the hand model's skeleton at `measures` (HandMeasures): the bones
+    of a user's hand (parameter hand_measures)."""
+    from softhand_sim.handmodel.skeleton import build_skeleton
+    sk = build_skeleton(measures)
+    return BoneInertia(sk["bone_mass"].copy(), sk["bone_com_local"].copy(), sk["bone_inertia_local"].copy(),
+                       source="measures")
+
+
 def default_bone_inertia() -> BoneInertia:
     """Masses and inertias of the hand model's default skeleton, or, when the hand model cannot
     be imported, solid capsules (density 1900 kg/m^3, radius 8 mm, along the bone from its origin,
@@ -224,14 +233,7 @@ class IntermediateBones:
 
     def __init__(self, config: LoopConfig | None = None, inertia: BoneInertia | None = None):
         self.config = config if config is not None else LoopConfig()
-        self.inertia = inertia if inertia is not None else default_bone_inertia()
-        inr = self.inertia
-        if inr.mass.shape != (BONE_COUNT,) or np.any(~np.isfinite(inr.mass)) or np.any(inr.mass <= 0):
-            raise ValueError(f"bone masses must be 16 finite values > 0 kg, got {inr.mass}")
-        self.mass = np.ascontiguousarray(inr.mass, dtype=np.float64)
-        self.com_local = np.ascontiguousarray(inr.com_local, dtype=np.float64)
-        self.inertia_local = np.ascontiguousarray(inr.inertia_local, dtype=np.float64)
-        self.inertia_sqrt_local = np.ascontiguousarray(np.stack([_sqrt_spd(i) for i in self.inertia_local]))
+        self.set_inertia(inertia if inertia is not None else default_bone_inertia())
         c = self.config
         self.tracked_kx = np.full(BONE_COUNT, c.tracked_kx)
         self.tracked_ktheta = np.full(BONE_COUNT, c.tracked_ktheta)
@@ -247,6 +249,17 @@ class IntermediateBones:
         self.sim_active = False
         self.sim_gain = 1.0            # [0, 1] scale of the feedback stiffnesses (contact gating)
         self.last_energy = 0.0
+
+    def set_inertia(self, inertia: BoneInertia) -> None:
+        """The bones' masses, centres of mass and inertias (e.g. a fitted hand's, hand_measures auto);
+        the poses stay, the next step uses them."""
+        if inertia.mass.shape != (BONE_COUNT,) or np.any(~np.isfinite(inertia.mass)) or np.any(inertia.mass <= 0):
+            raise ValueError(f"bone masses must be 16 finite values > 0 kg, got {inertia.mass}")
+        self.inertia = inertia
+        self.mass = np.ascontiguousarray(inertia.mass, dtype=np.float64)
+        self.com_local = np.ascontiguousarray(inertia.com_local, dtype=np.float64)
+        self.inertia_local = np.ascontiguousarray(inertia.inertia_local, dtype=np.float64)
+        self.inertia_sqrt_local = np.ascontiguousarray(np.stack([_sqrt_spd(i) for i in self.inertia_local]))
 
     def set_coupling(self, **values):
         """Change Eq. 14 stiffnesses or the damping ratio while running (tracked_kx, tracked_ktheta,

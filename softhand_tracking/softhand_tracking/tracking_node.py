@@ -39,7 +39,8 @@ from softhand_sim.ros.params import declare_node_params
 from softhand_sim.timing import FixedRateScheduler, StepStats
 from softhand_sim.topics import hand_topic, tracker_topic
 from softhand_tracking.adapter import AdapterConfig, TrackerAdapter
-from softhand_tracking.loop import LoopConfig, TrackingLoop, extrapolate_poses, warm_up
+from softhand_tracking.loop import (LoopConfig, TrackingLoop, bone_inertia_for, default_bone_inertia,
+                                    extrapolate_poses, warm_up)
 
 #: the default node name and the parameter schema's section; a second instance runs under another
 #: name (`-r __node:=tracking_node_left`), so logs and diagnostics use self.get_name()
@@ -105,11 +106,16 @@ class TrackingNode(Node):
                                  sim_kx=p["sim_kx"], sim_ktheta=p["sim_ktheta"], damping_ratio=p["damping_ratio"],
                                  feedback=p["feedback"], extrapolate=p["extrapolate"],
                                  ref_smoothing=p["ref_smoothing"])
+        inertia, self.measures, self.measures_source = self.hand_inertia(p["hand_measures"], name)
         self.loop = TrackingLoop(loop_config, adapter, tracker_timeout=p["tracker_timeout"],
-                                 sim_timeout=p["sim_timeout"])
+                                 sim_timeout=p["sim_timeout"], inertia=inertia)
         warm_up(loop_config, adapter.config)  # every kernel compiled/loaded now, not mid-run
         self.hand = p["hand"]
         self.hand_code = HAND_CODE[self.hand]
+        self.sizer = None  # hand_measures auto: the first tracked second gives the bones' masses
+        if self.measures_source == "auto":
+            from softhand_sim.hand_sizer import HandSizer
+            self.sizer = HandSizer(bone_inertia_for, side=self.hand)
         self.topics = {"tracker": tracker_topic(self.hand), "bones": hand_topic(self.hand, "bones"),
                        "out": hand_topic(self.hand, "intermediate_bones")}
         self.pub = self.create_publisher(PoseArray, self.topics["out"], STREAM_QOS)
@@ -145,6 +151,31 @@ class TrackingNode(Node):
     def now_s(self) -> float:
         return self.get_clock().now().nanoseconds * 1e-9
 
+    @staticmethod
+    def hand_inertia(spec: str, name: str):
+        """(BoneInertia, HandMeasures, source) of parameter hand_measures: default, a measures file
+        (ParamError naming it when unreadable) or auto (the default until the sizer has fitted)."""
+        from softhand_sim.handmodel.measures import HandMeasures, read_measures_file
+        if spec in ("default", "auto"):
+            return default_bone_inertia(), HandMeasures(), spec
+        try:
+            measures = read_measures_file(spec)
+        except ValueError as exc:
+            raise ParamError(f"{name}: parameter 'hand_measures': {exc}") from None
+        return bone_inertia_for(measures), measures, "file"
+
+    def poll_sizer(self) -> None:
+        """hand_measures auto: once the sizer has fitted the first second, the loop takes that hand's bones."""
+        inertia = self.sizer.poll()
+        if inertia is not None:
+            self.loop.bones.set_inertia(inertia)
+            self.measures, self.measures_source = self.sizer.fit.measures, "auto"
+            self.get_logger().info(f"hand_measures auto: {self.sizer.describe()}")
+        elif self.sizer.state == "failed":
+            self.get_logger().error(f"hand_measures auto: {self.sizer.describe()}", once=True)
+        if self.sizer.done:
+            self.sizer = None
+
     def on_tracker(self, msg: bytes) -> None:
         """A tracker frame, then the frames queued behind it for up to half a loop period
         (ros.common.take_pending): under load the executor's one message per cycle falls behind
@@ -166,6 +197,9 @@ class TrackingNode(Node):
             self.get_logger().warning(f"{self.topics['tracker']}: {exc}", throttle_duration_sec=REJECT_LOG_PERIOD)
         was_holding = self.loop.holding
         if self.loop.on_tracker(joints, self.now_s(), stamp_ns * 1e-9):
+            if self.sizer is not None:
+                self.sizer.add_frame(stamp_ns * 1e-9, joints)
+                self.poll_sizer()
             if was_holding:
                 self.get_logger().info("tracker frames are back: tracking resumed")
             return
@@ -216,6 +250,16 @@ class TrackingNode(Node):
         self.published += 1
         self.published_stamp = (int(t_ns) + self.lead_ns) * 1e-9
 
+    def measures_diagnostics(self) -> dict:
+        """The hand whose bones the loop integrates (as sim_node reports its own), and while `auto`
+        sizes, the sizer's state."""
+        from softhand_sim.hand_sizer import measures_diagnostics
+        if self.sizer is not None:
+            self.poll_sizer()  # the fit finishes in the sizer's thread between frames
+        if self.sizer is not None:
+            return self.sizer.diagnostics()
+        return measures_diagnostics(self.measures, self.measures_source)
+
     def collect_diagnostics(self):
         now = self.now_s()
         stats = self.rate_meter.stats()
@@ -241,6 +285,7 @@ class TrackingNode(Node):
             "sim_copy": self.loop.bones.sim_active, "sim_copy_drops": self.loop.sim_drops,
             "bad_sim_messages": self.bad_sim_messages, "bad_contact_messages": self.bad_contact_messages,
             "feedback_gain": self.loop.bones.sim_gain,
+            **self.measures_diagnostics(),
         }
         if not self.loop.initialized:
             return values, "warn", "waiting for the first valid tracker frame"

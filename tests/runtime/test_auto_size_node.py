@@ -29,14 +29,15 @@ def test_sim_node_sizes_the_hand_on_the_first_second(ros_env):
     while the hand is made it keeps publishing /diagnostics (state building); after that it
     simulates the fitted hand: source auto, hand length within
     2 mm of `softhand calibrate`'s on the same bag (DDS may drop a frame of the window), and it
-    publishes /hand/right/bones."""
+    publishes /hand/right/bones. tracking_node, also with hand_measures auto, fits the same hand
+    for its loop's bones."""
     bag = bags_dir() / "small_hand"
     expected = hand_length(fit_measures(*read_frames(bag)).measures) * 1e3
     with RosGraph(ros_env) as g:
         diag = g.listen("/diagnostics", DiagnosticArray)
         bones = g.listen("/hand/right/bones", PoseArray)
         sim = g.start(["softhand-sim", *ARGS, "-p", "hand_measures:=auto"])
-        tracking = g.start(["softhand-tracking", *ARGS])
+        tracking = g.start(["softhand-tracking", *ARGS, "-p", "hand_measures:=auto"])
         g.wait_until(lambda: latest(diag, "sim_node") is not None, 120, "sim_node diagnostics", sim)
         g.wait_until(lambda: latest(diag, "tracking_node") is not None, 120, "tracking_node diagnostics", tracking)
         v = latest(diag, "sim_node")
@@ -60,4 +61,9 @@ def test_sim_node_sizes_the_hand_on_the_first_second(ros_env):
         assert len(bones) > 0
         print("\n".join(line for line in sim.output().splitlines() if "hand_measures" in line))
         assert "hand_measures auto: hand fitted on" in sim.output()
+        # the tracking node sized its loop's bones on the same frames (its own sizer)
+        t = latest(diag, "tracking_node")
+        assert t["hand_measures_source"] == "auto" and "hand_size_state" not in t, t
+        assert abs(float(t["hand_length_mm"]) - float(v["hand_length_mm"])) <= 0.1, (t, v)
+        assert "hand_measures auto: hand fitted on" in tracking.output()
         assert sim.stop() == 0

@@ -280,3 +280,26 @@ def test_coupling_changed_while_running_is_used_by_the_next_step():
         bones.set_coupling(tracked_ktheta=0.0)
     with pytest.raises(ValueError, match="not a coupling parameter"):
         bones.set_coupling(rate=10.0)
+
+
+def test_bones_of_a_fitted_hand_replace_the_defaults():
+    """hand_measures (file or auto): the loop takes a small hand's bones (lighter, centres of mass
+    nearer their joints) in place of the default's, keeps its poses, and still steps to its targets."""
+    from softhand_sim.scenarios.tracker_bags import SMALL_HAND
+    from softhand_tracking.loop import bone_inertia_for, default_bone_inertia
+
+    small, default = bone_inertia_for(SMALL_HAND), default_bone_inertia()
+    assert np.all(small.mass < default.mass)
+    assert np.all(np.linalg.norm(small.com_local, axis=1) < np.linalg.norm(default.com_local, axis=1))
+    loop = TrackingLoop()
+    frame, _ = forward_kinematics(np.array([0, 0, 0.9, 0, 0, 0, 1.0]), np.full((5, 4), 0.2))
+    assert loop.on_tracker(frame, 0.0)
+    for k in range(50):
+        loop.step(k / 250.0)
+    pose = loop.bones.pose.copy()
+    loop.bones.set_inertia(small)
+    np.testing.assert_array_equal(loop.bones.pose, pose)
+    np.testing.assert_array_equal(loop.bones.mass, small.mass)
+    for k in range(50, 150):
+        loop.step(k / 250.0)
+    assert np.all(np.isfinite(loop.bones.pose))
