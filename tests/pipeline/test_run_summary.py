@@ -167,3 +167,20 @@ def test_summary_of_a_one_hand_run_has_only_that_hand(tmp_path):
     write_bag(tmp_path / "one", records)
     s = summarize_run(tmp_path / "one")
     assert list(s["hands"]) == ["right"] and s["tracker_frames"]["recorded"] == 5
+
+
+def test_summary_scores_each_hand_against_the_tracked_one(tmp_path):
+    """The demo summary carries `softhand fidelity`'s figures per hand: on the lag tests' recording
+    (the simulated layer 30 ms behind the tracked motion), the lag; on the one with no delay and the
+    simulated palm 5 mm off, that offset as the palm error and the phalanx directions within the
+    motion between two tracker frames (0.8 deg at most); both printed."""
+    from softhand_sim.commands.demo import format_summary
+    from softhand_sim.commands.run_summary import summarize_run
+    from tests.pipeline.test_lag import recording
+
+    delayed = summarize_run(recording(tmp_path / "delayed"))["hands"]["right"]
+    assert abs(delayed["lag_ms"]["sim"]["phalanx"] - 30.0) <= 1.0, delayed["lag_ms"]
+    offset = summarize_run(recording(tmp_path / "offset", delays=(0.0, 0.0), palm_offset=(0.0, 0.003, 0.004)))
+    f = offset["hands"]["right"]["fidelity"]
+    assert abs(f["palm_mm"]["median"] - 5.0) < 0.01 and f["phalanx_direction_deg"]["median"] < 0.5, f
+    assert "right hand vs the tracked one (median / p95): palm 5.0 / 5.0 mm" in format_summary(offset, tmp_path)

@@ -242,6 +242,17 @@ def run_demo(bag, out_dir, rate=1.0, params_file=None, preview=True, startup_tim
     return summary
 
 
+FIDELITY_LABELS = {"palm_mm": ("palm", "mm"), "palm_deg": ("palm", "deg"), "knuckle_mm": ("knuckles", "mm"),
+                   "fingertip_mm": ("fingertips", "mm"), "phalanx_direction_deg": ("phalanx directions", "deg"),
+                   "pinch_gap_error_mm": ("pinch gap", "mm")}
+
+
+def fidelity_line(f: dict) -> str:
+    """The printed summary's errors of one hand (run_summary's `fidelity`)."""
+    return ", ".join(f"{FIDELITY_LABELS[k][0]} {v['median']:.1f} / {v['p95']:.1f} {FIDELITY_LABELS[k][1]}"
+                     for k, v in f.items() if k in FIDELITY_LABELS)
+
+
 def format_summary(s, out_dir):
     from softhand_sim.commands.run_summary import hand_measures_line
 
@@ -261,6 +272,8 @@ def format_summary(s, out_dir):
         *(f"  {side} hand lag behind the tracked one (phalanx / palm): "
           + ", ".join(f"{layer} {v['phalanx']:.1f} / {v['palm']:.1f} ms" for layer, v in h["lag_ms"].items())
           for side, h in s.get("hands", {}).items() if h.get("lag_ms")),
+        *(f"  {side} hand vs the tracked one (median / p95): " + fidelity_line(h["fidelity"])
+          for side, h in s.get("hands", {}).items() if h.get("fidelity")),
         hand_measures_line(s.get("hand_measures", {})),
         f"  max active contacts: {s.get('max_contacts', 0)}",
         f"  ball: lifted {100 * s.get('ball_lift_m', 0.0):.1f} cm (lifted >= 8 cm: {s.get('ball_lifted', False)})",

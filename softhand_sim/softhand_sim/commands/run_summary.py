@@ -11,8 +11,11 @@ Measured, not reported by the nodes alone:
 - tracker frames, per hand: in the input bag, recorded, and received / accepted / rejected by that
   hand's tracking node (its last /diagnostics), and published (play_node's log, all hands
   together): nothing may be lost on replay (issue #17);
-- lag per hand (`softhand lag`, softhand_sim.commands.lag): the best time shift of the intermediate
-  and the simulated phalanx directions and palm behind the tracked ones [ms];
+- fidelity per hand (`softhand fidelity`, softhand_sim.commands.fidelity, with the bone lengths
+  sim_node reported): the lag (the best time shift of the intermediate and the simulated phalanx
+  directions and palm behind the tracked ones [ms]), and the simulated hand's palm position and
+  orientation, knuckle, fingertip and phalanx direction errors and thumb-index gap error against
+  the tracked hand (median, p95, max);
 - max active contacts from /hand/contacts (per hand by its `hand` field); ball lift from the
   engine side /world/object_states;
 - the hand measures in use (source default | file | auto, hand and palm sizes [mm], the sizing state
@@ -104,15 +107,24 @@ def _pointcloud_fields(msg):
     return pointcloud_to_structured(msg)
 
 
-def _lag_ms(bag_dir, side):
-    """{layer: {phalanx, palm}} lag [ms] of one hand (softhand lag), {} where it cannot be told."""
-    from softhand_sim.commands.lag import lag_report
+FIDELITY_KEYS = ("palm_mm", "palm_deg", "knuckle_mm", "fingertip_mm", "phalanx_direction_deg", "pinch_gap_error_mm")
+
+
+def _fidelity(bag_dir, side):
+    """(lag {layer: {phalanx, palm}} [ms], errors {FIDELITY_KEYS: {median, p95, max}}) of one hand
+    (softhand fidelity on the recording); ({}, {}) where they cannot be told."""
+    from softhand_sim.commands.fidelity import recorded_fidelity, recorded_measures
+    from softhand_sim.handmodel.measures import HandMeasures
+    from softhand_sim.handmodel.skeleton import build_skeleton
+    from softhand_sim.ros.bagio import BagError
+    bone_length = recorded_measures(bag_dir)[0]
+    if bone_length is None:
+        bone_length = build_skeleton(HandMeasures())["bone_length"]
     try:
-        report = lag_report(bag_dir, hand=side)
-    except ValueError:
-        return {}
-    return {layer: {"phalanx": report[layer]["lag_phalanx_ms"], "palm": report[layer]["lag_palm_ms"]}
-            for layer in ("intermediate", "sim") if layer in report and "lag_phalanx_ms" in report[layer]}
+        f = recorded_fidelity(bag_dir, bone_length, side)
+    except (ValueError, BagError):
+        return {}, {}
+    return f.get("lag_ms", {}), {k: f[k] for k in FIDELITY_KEYS if k in f and f[k].get("median") is not None}
 
 
 def frame_latency_ms(tracker_t, bones_t):
@@ -286,7 +298,7 @@ def summarize_run(bag_dir, bag_name="", exit_codes=None, input_bag=None, play_lo
             "max_contacts": max_contacts_hand.get(side, 0),
         }
         if tracker_t and bones_t:
-            hands[side]["lag_ms"] = _lag_ms(bag_dir, side)
+            hands[side]["lag_ms"], hands[side]["fidelity"] = _fidelity(bag_dir, side)
     latency = np.concatenate(latencies) if latencies else np.empty(0)
     startup_s = float(np.nanmax(startups)) if startups and not np.all(np.isnan(startups)) else float("nan")
     size = sum(f.stat().st_size for f in bag_dir.rglob("*") if f.is_file())
