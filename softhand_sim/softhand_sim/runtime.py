@@ -29,11 +29,13 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from softhand_sim.physics.contact import detection as contact_mod
+from softhand_sim.physics.contact.hand_self_contact import NO_BONE, SKIN_OBJECT, HandSelfContact
 from softhand_sim.physics.control import Control
 from softhand_sim.physics.coupling import ObjectCopy, limit_coupling_stiffness
 from softhand_sim.physics.coupling import warm_up as coupling_warm_up
 from softhand_sim.handmodel import load_or_build_hand
 from softhand_sim.handmodel.measures import as_measures
+from softhand_sim.handmodel.rigid_skin import skin_segments
 from softhand_sim.hand_sizer import measures_diagnostics
 from softhand_sim.params import ParamError
 from softhand_sim.physics.hands import HAND_CODE, SIDES, union_asset
@@ -162,7 +164,12 @@ class SimRuntime:
         self.contacts = contact_mod.build_contact_system(self.model, self.scene, union,
                                                          kn=params["contact_kn"], kf=params["contact_kf"])
         self.contacts.hand_enabled[:] = 0  # no contact before a hand's first target
-        self.solver = Solver(self.model, contacts=self.contacts)
+        # the bone (0-15, of its hand) of every skin point: the `bone` of each object contact
+        self._skin_bone = np.concatenate([skin_segments(a)[0] for a in assets]).astype(np.uint8)
+        # skin on skin (parameter self_contact): one system over every hand, a hand's skin in once placed
+        self.self_contact = HandSelfContact(self.model, union, assets) if params["self_contact"] else None
+        self.solver = Solver(self.model, contacts=self.contacts,
+                             self_contacts=self.self_contact.system if self.self_contact else None)
         self.state = State.at_rest(self.model)
         self.control = Control.at_rest(self.model)
         self.good_state = self.state.copy()
@@ -295,6 +302,8 @@ class SimRuntime:
          self.hand_placed, self.steps, self._prev_body_v, self.object_targets, enabled, self.leads) = saved
         self.contacts.reset()
         self.contacts.hand_enabled[:] = enabled
+        if self.self_contact is not None:
+            self.self_contact.system.reset()
         self.rejected_steps = 0
 
     def place_hand(self, palm_pose, hand=None):
@@ -318,6 +327,8 @@ class SimRuntime:
         s.tet_q[tets] = dq / np.linalg.norm(dq)
         self.contacts.reset(h if len(self.hands) > 1 else None)
         self.contacts.hand_enabled[h] = 1
+        if self.self_contact is not None:
+            self.self_contact.enter(h)
         self.good_state = s.copy()
         self.hand_placed[h] = True
 
@@ -372,6 +383,8 @@ class SimRuntime:
             self.rejected_steps += 1
             self.state = self.good_state.copy()
             self.contacts.reset()
+            if self.self_contact is not None:
+                self.self_contact.system.reset()
         else:
             self.good_state = self.state.copy()
         t3 = clock()
@@ -390,17 +403,32 @@ class SimRuntime:
         out = StepOutput(
             t=t + dt, bone_poses=first.bone_poses, object_names=self.object_names,
             object_poses=s.object_pose.copy(), object_twists=body_v.copy(), object_accels=accels,
-            skin_vertices=first.skin_vertices, contacts=self.contacts.output(s.node_x, s.body_x, s.body_q),
+            skin_vertices=first.skin_vertices, contacts=self.contact_rows(s),
             stats=stats, rejected=rejected, warning=warning, node_x=s.node_x, hands=hands)
         for h, side in enumerate(self.hands):  # the lead's contact gate
             if self.leads[h].enabled:
-                self.leads[h].on_contacts(int(np.count_nonzero(out.contacts["hand"] == HAND_CODE[side])), t + dt)
+                objects = out.contacts["objects"] != SKIN_OBJECT  # as the tracking node's feedback gate
+                self.leads[h].on_contacts(int(np.count_nonzero(objects & (out.contacts["hand"] == HAND_CODE[side]))),
+                                          t + dt)
         t5 = clock()
         # the solver's stages cover its step but for its bookkeeping (a few us): that goes to none
         out.stages = {"targets": 1e3 * (t1 - t0), **{name: getattr(stats, f) for name, f in STAGE_FIELDS},
                       "guard": 1e3 * (t3 - t2), "skin": 1e3 * (t4 - t3), "output": 1e3 * (t5 - t4)}
         self.last_step_stamp = out.t
         return out
+
+    def contact_rows(self, s) -> dict:
+        """The step's contacts (ContactSystem.output's keys, plus bone, other_hand, other_bone:
+        docs/INTERFACE.md's /hand/contacts, and depth [m] of skin-skin contacts, NaN for object
+        ones): the object contacts, then the skin-skin ones."""
+        rows = self.contacts.output(s.node_x, s.body_x, s.body_q)
+        n = len(rows["points"])
+        rows.update(bone=self._skin_bone[rows["point"]], other_hand=np.full(n, NO_BONE, np.uint8),
+                    other_bone=np.full(n, NO_BONE, np.uint8), depth=np.full(n, np.nan))  # depth: skin-skin only
+        if self.self_contact is None:
+            return rows
+        skin = self.self_contact.rows(s.node_x)
+        return {key: np.concatenate([value, skin[key]]) for key, value in rows.items()}
 
     def _guard(self, stats):
         """'' if the new state is acceptable, else why the step is rejected."""
@@ -424,6 +452,8 @@ class SimRuntime:
                 "copy_gaps": sum(c.gaps for c in self.copies),
                 "stale_objects": ",".join(self.stale_objects(self.last_t)) or "-",
                 **measures_diagnostics(self.measures, self.measures_source)}
+        if self.self_contact is not None:
+            out.update(self.self_contact.diagnostics())
         if len(self.hands) > 1:
             out["hands"] = ",".join(f"{side}:{'in' if placed else 'waiting'}"
                                     for side, placed in zip(self.hands, self.hand_placed))

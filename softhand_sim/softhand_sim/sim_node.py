@@ -266,7 +266,8 @@ class SimNode(Node):
                 out.object_names, out.object_poses, out.object_twists, out.object_accels, stamp)))
         c = out.contacts
         rest.append((self.pub_contacts, rm.contacts_cloud_from_numpy(
-            c["points"], c["normals"], c["forces"], c["objects"], c["slip"], stamp, hand=c["hand"])))
+            c["points"], c["normals"], c["forces"], c["objects"], c["slip"], stamp, hand=c["hand"], bone=c["bone"],
+            other_hand=c["other_hand"], other_bone=c["other_bone"])))
         if marker_tick:
             rest.append((self.pub_contact_markers,
                          self.contact_serializer.serialize(c["points"], c["forces"], c["slip"], stamp)))

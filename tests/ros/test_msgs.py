@@ -114,20 +114,31 @@ def test_xyz_cloud_round_trip_float32():
 
 
 def test_contacts_cloud_round_trip_all_fields():
-    """Contacts cloud has the 12 docs/INTERFACE.md fields with their types and round-trips each of
-    them; 44 bytes a point (the hand byte sits in the old padding); a cloud written before the
-    hand field existed reads as the right hand's."""
+    from softhand_sim.physics.contact.hand_self_contact import SKIN_OBJECT
+
+    """Contacts cloud has the 15 docs/INTERFACE.md fields with their types and round-trips each of
+    them; 48 bytes a point; a cloud written before the hand field existed reads as the right
+    hand's, one before the bone fields with NO_BONE; skin-skin rows carry SKIN_OBJECT and the
+    other hand and bone."""
     rng = np.random.default_rng(3)
     n = 40
     pts, nrm, frc = rng.normal(size=(n, 3)), rng.normal(size=(n, 3)), rng.normal(size=(n, 3))
     obj = rng.integers(0, 4, size=n)
     slip = rng.integers(0, 2, size=n)
     hand = rng.integers(0, 2, size=n)
-    msg = rm.contacts_cloud_from_numpy(pts, nrm, frc, obj, slip, 1.0, hand=hand)
+    bone = rng.integers(0, 16, size=n)
+    skin = rng.random(n) < 0.3  # skin-skin rows
+    obj[skin] = SKIN_OBJECT
+    other_hand = np.where(skin, rng.integers(0, 2, size=n), rm.NO_BONE)
+    other_bone = np.where(skin, rng.integers(0, 16, size=n), rm.NO_BONE)
+    msg = rm.contacts_cloud_from_numpy(pts, nrm, frc, obj, slip, 1.0, hand=hand, bone=bone,
+                                       other_hand=other_hand, other_bone=other_bone)
     types = {f.name: f.datatype for f in msg.fields}
-    assert list(types) == ["x", "y", "z", "nx", "ny", "nz", "fx", "fy", "fz", "object", "slip", "hand"]
+    assert list(types) == ["x", "y", "z", "nx", "ny", "nz", "fx", "fy", "fz", "object", "slip", "hand", "bone",
+                           "other_hand", "other_bone"]
     assert types["object"] == PointField.UINT32 and types["slip"] == PointField.UINT8
-    assert types["hand"] == PointField.UINT8 and msg.point_step == 44
+    assert all(types[k] == PointField.UINT8 for k in ("hand", "bone", "other_hand", "other_bone"))
+    assert msg.point_step == 48
     assert all(types[k] == PointField.FLOAT32 for k in list(types)[:9])
     back = rm.contacts_cloud_to_numpy(deserialize_message(serialize_message(msg), PointCloud2))
     np.testing.assert_array_equal(back["points"], pts.astype(np.float32))
@@ -136,9 +147,12 @@ def test_contacts_cloud_round_trip_all_fields():
     np.testing.assert_array_equal(back["object"], obj)
     np.testing.assert_array_equal(back["slip"], slip)
     np.testing.assert_array_equal(back["hand"], hand)
+    for name, want in (("bone", bone), ("other_hand", other_hand), ("other_bone", other_bone)):
+        np.testing.assert_array_equal(back[name], want)
     old = deserialize_message(serialize_message(msg), PointCloud2)
-    old.fields = [f for f in old.fields if f.name != "hand"]  # as recorded before the field existed
-    assert not rm.contacts_cloud_to_numpy(old)["hand"].any()
+    old.fields = [f for f in old.fields if f.name not in ("hand", "bone", "other_hand", "other_bone")]
+    back_old = rm.contacts_cloud_to_numpy(old)  # as recorded before the fields existed
+    assert not back_old["hand"].any() and np.all(back_old["bone"] == rm.NO_BONE)
     empty = rm.contacts_cloud_from_numpy(np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, 3)), [], [], 0)
     assert rm.contacts_cloud_to_numpy(empty)["points"].shape == (0, 3)
 

@@ -114,19 +114,25 @@ def contacts(hands):
 
 
 def test_contact_count_per_hand():
-    """hand_contact_count counts only the points of its side's code; an old cloud without the `hand`
-    field is the right hand's; a cloud whose data is short is refused."""
+    """hand_contact_count counts only the object contacts of its side's code (skin-on-skin rows
+    left out); an old cloud without the `hand` field is the right hand's; a cloud whose data is
+    short is refused."""
     for hands in ([], [0], [1], [0, 1, 1, 0, 1], [1] * 7):
         cloud = contacts(hands)
         for side, code in HAND_CODE.items():
             assert hand_contact_count(cloud, code) == hands.count(code), (hands, side)
-    names = [k for k in CONTACT_DTYPE.names if k != "hand"]  # the layout before two hands
+    names = [k for k in CONTACT_DTYPE.names if k not in ("hand", "bone", "other_hand", "other_bone")]  # before two hands
     old = np.zeros(3, dtype=np.dtype({"names": names, "formats": [CONTACT_DTYPE.fields[k][0] for k in names],
                                       "offsets": [CONTACT_DTYPE.fields[k][1] for k in names],
                                       "itemsize": CONTACT_DTYPE.itemsize}))
     old_cloud = pointcloud_from_structured(old, 0)
     assert hand_contact_count(old_cloud, HAND_CODE["right"]) == 3
     assert hand_contact_count(old_cloud, HAND_CODE["left"]) == 0
+    from softhand_sim.physics.contact.hand_self_contact import SKIN_OBJECT
+    objects = np.array([0, SKIN_OBJECT, 3, SKIN_OBJECT, SKIN_OBJECT], dtype=np.uint32)  # skin on skin: not counted
+    mixed = contacts_cloud_from_numpy(np.zeros((5, 3)), np.tile([0.0, 0.0, 1.0], (5, 1)), np.zeros((5, 3)),
+                                      objects, np.zeros(5), 0, hand=np.array([0, 0, 1, 1, 0], np.uint8))
+    assert hand_contact_count(mixed, HAND_CODE["right"]) == 1 and hand_contact_count(mixed, HAND_CODE["left"]) == 1
     short = contacts([1, 1])
     short.data = short.data[:50]
     with pytest.raises(ValueError, match="bytes"):

@@ -275,7 +275,7 @@ def format_summary(s, out_dir):
         *(f"  {side} hand vs the tracked one (median / p95): " + fidelity_line(h["fidelity"])
           for side, h in s.get("hands", {}).items() if h.get("fidelity")),
         hand_measures_line(s.get("hand_measures", {})),
-        f"  max active contacts: {s.get('max_contacts', 0)}",
+        f"  max active contacts: {s.get('max_contacts', 0)} (skin on skin: {s.get('max_skin_contacts', 0)})",
         f"  ball: lifted {100 * s.get('ball_lift_m', 0.0):.1f} cm (lifted >= 8 cm: {s.get('ball_lifted', False)})",
         f"  recording: {s.get('bag_messages', 0)} messages, {s.get('bag_mb', 0.0):.1f} MB, all values finite: "
         f"{s.get('all_finite', False)}",

@@ -14,8 +14,9 @@ phalanx direction error, thumb-index tip gap) as JSON: one object, with the figu
 under "hands" when a recording holds two. A recording's figures also hold what `softhand lag`
 measures (softhand_sim.commands.lag): `lag_ms` (the best time shift of the intermediate and the
 simulated phalanx directions and palm behind the tracked ones), `palm_deg` (the simulated palm's
-orientation error) and `frames` (tracker frames recorded, and received / accepted / rejected by
-the hand's tracking node).
+orientation error), `frames` (tracker frames recorded, and received / accepted / rejected by
+the hand's tracking node) and `skin_contacts` (skin on skin, with sim_node's self_contact: the
+most in one step and the steps with any).
 """
 import argparse
 import json
@@ -100,7 +101,27 @@ def recorded_fidelity(bag, bone_length, side="right"):
     if "palm_deg" in lag.get("sim", {}):
         figures["palm_deg"] = {k: round(v, 2) for k, v in lag["sim"]["palm_deg"].items()}
     figures["frames"] = lag["frames"]
+    figures["skin_contacts"] = skin_contact_counts(bag, side)
     return figures
+
+
+def skin_contact_counts(bag, side="right") -> dict:
+    """Skin-on-skin contacts of hand `side` in a recording's /hand/contacts (sim parameter
+    self_contact): the most in one step and the steps with any; zeros without the topic."""
+    from softhand_sim.physics.contact.hand_self_contact import SKIN_OBJECT
+    from softhand_sim.physics.hands import HAND_CODE
+    from softhand_sim.ros.bagio import BagError, deserialize, read_topic
+    from softhand_sim.ros.msgs import pointcloud_to_structured
+    try:
+        payloads = read_topic(bag, "/hand/contacts", "sensor_msgs/msg/PointCloud2").payloads
+    except BagError:
+        return {"max": 0, "steps": 0}
+    counts = []
+    for raw in payloads:
+        cloud = pointcloud_to_structured(deserialize(raw, "sensor_msgs/msg/PointCloud2"))
+        hand = cloud["hand"] if "hand" in cloud.dtype.names else np.zeros(cloud.size, np.uint8)
+        counts.append(int(np.sum((cloud["object"] == SKIN_OBJECT) & (hand == HAND_CODE[side]))))
+    return {"max": max(counts, default=0), "steps": int(np.count_nonzero(counts))}
 
 
 def offline_fidelity(bag, measures):

@@ -36,6 +36,7 @@ from pathlib import Path
 
 import numpy as np
 
+from softhand_sim.physics.contact.hand_self_contact import SKIN_OBJECT
 from softhand_sim.params import load_params, safe_load
 from softhand_sim.paths import bags_dir
 from softhand_sim.physics.rotations import quat_to_matrix
@@ -201,7 +202,9 @@ def run_pipeline(bag=None, synth=None, until=None, sim_latency=None, sim_overrid
                 continue
             push(t + latency, _SIM_OUT, (out.t, out.bone_poses.copy(), list(out.object_names),
                                          out.object_poses.copy(), out.object_twists.copy(),
-                                         out.object_accels.copy(), len(out.contacts["points"])))
+                                         out.object_accels.copy(),
+                                         # the feedback gate counts object contacts only (tracking_node)
+                                         int(np.count_nonzero(out.contacts["objects"] != SKIN_OBJECT))))
             c = out.contacts
             on_ball = c["objects"] == ball_contact
             palm = out.bone_poses[0]

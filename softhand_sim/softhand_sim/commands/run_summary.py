@@ -16,8 +16,9 @@ Measured, not reported by the nodes alone:
   directions and palm behind the tracked ones [ms]), and the simulated hand's palm position and
   orientation, knuckle, fingertip and phalanx direction errors and thumb-index gap error against
   the tracked hand (median, p95, max);
-- max active contacts from /hand/contacts (per hand by its `hand` field); ball lift from the
-  engine side /world/object_states;
+- max active contacts from /hand/contacts (per hand by its `hand` field), and of them skin on
+  skin (`object` SKIN_OBJECT, sim parameter self_contact); ball lift from the engine side
+  /world/object_states;
 - the hand measures in use (source default | file | auto, hand and palm sizes [mm], the sizing state
   while `hand_measures: auto` fits) from sim_node's last /diagnostics status that names them;
 - finiteness of every numeric field of every recorded message.
@@ -37,6 +38,7 @@ from pathlib import Path
 
 import numpy as np
 
+from softhand_sim.physics.contact.hand_self_contact import SKIN_OBJECT
 from softhand_sim.topics import LEGACY_TRACKER, SIDES, hand_topic, side_of, tracker_topic
 
 LIFT_OBJECT = "ball"
@@ -228,8 +230,8 @@ def summarize_run(bag_dir, bag_name="", exit_codes=None, input_bag=None, play_lo
     step_p50, step_p99 = [], []
     tracking_counts = {}  # side -> counts of that hand's tracking node
     hand_measures = {}
-    max_contacts = 0
-    max_contacts_hand = defaultdict(int)
+    max_contacts = max_skin_contacts = 0
+    max_contacts_hand, max_skin_hand = defaultdict(int), defaultdict(int)
     ball_z = []
     all_finite = True
     count = 0
@@ -247,8 +249,11 @@ def summarize_run(bag_dir, bag_name="", exit_codes=None, input_bag=None, play_lo
                 if conn.topic == "/hand/contacts":
                     max_contacts = max(max_contacts, int(cloud.size))
                     hands = cloud["hand"] if "hand" in cloud.dtype.names else np.zeros(cloud.size, np.uint8)
+                    skin = cloud["object"] == SKIN_OBJECT  # skin on skin (self_contact)
+                    max_skin_contacts = max(max_skin_contacts, int(skin.sum()))
                     for code, side in enumerate(SIDES):  # the `hand` field: 0 right, 1 left
                         max_contacts_hand[side] = max(max_contacts_hand[side], int(np.sum(hands == code)))
+                        max_skin_hand[side] = max(max_skin_hand[side], int(np.sum(skin & (hands == code))))
             elif not _finite(msg):
                 all_finite = False
             if conn.topic == "/world/object_states":
@@ -296,6 +301,7 @@ def summarize_run(bag_dir, bag_name="", exit_codes=None, input_bag=None, play_lo
             "latency_ms_p99": float(np.percentile(latency, 99)) if len(latency) else float("nan"),
             "startup_s": startup_s,
             "max_contacts": max_contacts_hand.get(side, 0),
+            "max_skin_contacts": max_skin_hand.get(side, 0),
         }
         if tracker_t and bones_t:
             hands[side]["lag_ms"], hands[side]["fidelity"] = _fidelity(bag_dir, side)
@@ -326,6 +332,7 @@ def summarize_run(bag_dir, bag_name="", exit_codes=None, input_bag=None, play_lo
         "startup_s": startup_s,
         "hand_measures": hand_measures,
         "max_contacts": max_contacts,
+        "max_skin_contacts": max_skin_contacts,
         "ball_lift_m": float(max(ball_z) - ball_z[0]) if ball_z else 0.0,
         "ball_lifted": bool(ball_z and max(ball_z) - ball_z[0] >= 0.08),
         "all_finite": all_finite,

@@ -245,13 +245,19 @@ _FIELD_DTYPES = {
 _DTYPE_FIELDS = {np.dtype(v): k for k, v in _FIELD_DTYPES.items()}
 
 # /hand/contacts layout (docs/INTERFACE.md): 9 float32, object uint32, slip uint8, hand uint8
-# (0 right, 1 left), padded to 4 bytes.
+# (0 right, 1 left), bone uint8 (0-15, of that hand), other_hand and other_bone uint8 (skin-skin
+# contacts: the touched skin's; NO_BONE otherwise), padded to 4 bytes.
 CONTACT_DTYPE = np.dtype({
-    "names": ["x", "y", "z", "nx", "ny", "nz", "fx", "fy", "fz", "object", "slip", "hand"],
-    "formats": [np.float32] * 9 + [np.uint32, np.uint8, np.uint8],
-    "offsets": [0, 4, 8, 12, 16, 20, 24, 28, 32, 36, 40, 41],
-    "itemsize": 44,
+    "names": ["x", "y", "z", "nx", "ny", "nz", "fx", "fy", "fz", "object", "slip", "hand", "bone",
+              "other_hand", "other_bone"],
+    "formats": [np.float32] * 9 + [np.uint32] + [np.uint8] * 5,
+    "offsets": [0, 4, 8, 12, 16, 20, 24, 28, 32, 36, 40, 41, 42, 43, 44],
+    "itemsize": 48,
 })
+# the `bone` / `other_hand` / `other_bone` where there is none (object contacts' other side, older
+# recordings); skin-skin contacts' `object` is hand_self_contact.SKIN_OBJECT
+from softhand_sim.physics.contact.hand_self_contact import NO_BONE  # noqa: E402
+_OPTIONAL_CONTACT_FIELDS = ("hand", "bone", "other_hand", "other_bone")  # absent from older recordings
 XYZ_DTYPE = np.dtype({"names": ["x", "y", "z"], "formats": [np.float32] * 3, "offsets": [0, 4, 8], "itemsize": 12})
 
 
@@ -316,12 +322,14 @@ def xyz_cloud_to_numpy(msg) -> np.ndarray:
 
 
 def contacts_cloud_from_numpy(points, normals, forces, objects, slip, stamp,
-                              frame_id: str = WORLD_FRAME, hand=None) -> PointCloud2:
+                              frame_id: str = WORLD_FRAME, hand=None, bone=None, other_hand=None,
+                              other_bone=None) -> PointCloud2:
     """/hand/contacts PointCloud2: one point per active contact.
 
     points (n, 3) [m], normals (n, 3) unit, forces (n, 3) [N] (force on the hand), objects (n,)
-    object index (uint32), slip (n,) 0 stick / 1 slip (uint8), hand (n,) 0 right / 1 left
-    (uint8; None: all right).
+    object index (uint32; SKIN_OBJECT for skin on skin), slip (n,) 0 stick / 1 slip (uint8), hand
+    (n,) 0 right / 1 left (uint8; None: all right), bone (n,) the bone (0-15) whose skin touches,
+    other_hand / other_bone (n,) the touched skin's for skin-skin contacts (None: NO_BONE).
     """
     p = _check_rows("points", points, 3)
     n = p.shape[0]
@@ -330,7 +338,10 @@ def contacts_cloud_from_numpy(points, normals, forces, objects, slip, stamp,
     obj = np.asarray(objects).reshape(-1)
     slp = np.asarray(slip).reshape(-1)
     hnd = np.zeros(n, np.uint8) if hand is None else np.asarray(hand).reshape(-1)
-    for label, arr in (("normals", nrm), ("forces", frc), ("objects", obj), ("slip", slp), ("hand", hnd)):
+    extra = {name: np.full(n, NO_BONE, np.uint8) if arr is None else np.asarray(arr).reshape(-1)
+             for name, arr in (("bone", bone), ("other_hand", other_hand), ("other_bone", other_bone))}
+    for label, arr in (("normals", nrm), ("forces", frc), ("objects", obj), ("slip", slp), ("hand", hnd),
+                       *extra.items()):
         if arr.shape[0] != n:
             raise ValueError(f"{label} has {arr.shape[0]} rows for {n} contact points")
     pts = np.zeros(n, dtype=CONTACT_DTYPE)
@@ -341,15 +352,17 @@ def contacts_cloud_from_numpy(points, normals, forces, objects, slip, stamp,
     pts["object"] = obj.astype(np.uint32)
     pts["slip"] = slp.astype(np.uint8)
     pts["hand"] = hnd.astype(np.uint8)
+    for name, arr in extra.items():
+        pts[name] = arr.astype(np.uint8)
     return pointcloud_from_structured(pts, stamp, frame_id)
 
 
 def contacts_cloud_to_numpy(msg) -> dict:
     """Dict of arrays from a /hand/contacts cloud: points, normals, forces (n,3) f8, object (n,) u4,
     slip (n,) u1, hand (n,) u1 (0 right, 1 left; all 0 in single-hand recordings made before the
-    field existed)."""
+    field existed), bone, other_hand, other_bone (n,) u1 (NO_BONE where a recording lacks them)."""
     pts = pointcloud_to_structured(msg)
-    missing = [k for k in CONTACT_DTYPE.names if k not in pts.dtype.names and k != "hand"]
+    missing = [k for k in CONTACT_DTYPE.names if k not in pts.dtype.names and k not in _OPTIONAL_CONTACT_FIELDS]
     if missing:
         raise ValueError(f"contacts cloud lacks fields {missing}")
 
@@ -358,7 +371,9 @@ def contacts_cloud_to_numpy(msg) -> dict:
 
     return {"points": vec(""), "normals": vec("n"), "forces": vec("f"),
             "object": pts["object"].astype(np.uint32), "slip": pts["slip"].astype(np.uint8),
-            "hand": (pts["hand"].astype(np.uint8) if "hand" in pts.dtype.names else np.zeros(len(pts), np.uint8))}
+            "hand": (pts["hand"].astype(np.uint8) if "hand" in pts.dtype.names else np.zeros(len(pts), np.uint8)),
+            **{name: (pts[name].astype(np.uint8) if name in pts.dtype.names else np.full(len(pts), NO_BONE, np.uint8))
+               for name in ("bone", "other_hand", "other_bone")}}
 
 
 # ------------------------------------------------------------------------------- meshes, markers
