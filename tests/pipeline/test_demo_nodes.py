@@ -218,7 +218,8 @@ def test_hand_measures_auto_on_a_real_recording(tmp_path):
     """sim_node with `hand_measures: auto` on leap_grab (a real Leap Motion recording, 3.3 s),
     played 3 times in a row (`softhand demo --repeat 3`): the first tracked second sizes the hand
     to what `softhand calibrate` gives for the same frames (0.1 mm), the fitted hand is placed and
-    simulated (its bones recorded), every frame of the three plays recorded and accepted."""
+    simulated (its bones recorded), every frame of the three plays recorded and accepted, and the
+    fitted hand follows the real hand within the user-fit acceptance (`softhand fidelity`)."""
     proc = subprocess.run([SOFTHAND, "calibrate", "leap_grab", "--json", "--out", str(tmp_path / "measures.yaml")],
                           capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0, proc.stderr[-2000:]
@@ -241,3 +242,14 @@ def test_hand_measures_auto_on_a_real_recording(tmp_path):
     frames = summary["tracker_frames"]
     assert frames["in_bag"] == 3 * 374, frames  # leap_grab: 374 frames, played three times
     check_nothing_lost(summary)
+    # the user-fit acceptance through the node set, scored with the fitted hand's bone lengths
+    # that sim_node reported (measured: tips 3.8 / 12.3 mm, knuckles 3.4 mm, pinch gap 1.0 mm; the
+    # p95 includes the jump back to the start at each repeat)
+    proc = subprocess.run([SOFTHAND, "fidelity", str(out)], capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    f = json.loads(proc.stdout.strip().splitlines()[-1])
+    print("leap_grab, auto, through the nodes:", {k: f[k] for k in ("measures", "fingertip_mm", "knuckle_mm",
+                                                                    "pinch_gap_error_mm", "lag_ms")})
+    assert f["measures"] == "recorded (auto)", f["measures"]
+    assert f["fingertip_mm"]["median"] <= 8.0 and f["fingertip_mm"]["p95"] <= 20.0, f["fingertip_mm"]
+    assert f["knuckle_mm"]["median"] <= 6.0 and f["pinch_gap_error_mm"]["median"] <= 5.0, f
