@@ -285,10 +285,13 @@ class RecordNode(Node):
         if side not in self.live_lag:
             from softhand_sim.live_lag import LiveLag
             self.live_lag[side] = LiveLag(hand=side)
-        if layer == "tracked":
-            self.live_lag[side].add_frame(stamp_ns * 1e-9, poses)
-        elif poses.shape == (16, 7):
-            self.live_lag[side].add(layer, stamp_ns * 1e-9, poses)
+        try:
+            if layer == "tracked":
+                self.live_lag[side].add_frame(stamp_ns * 1e-9, poses)
+            elif poses.shape == (16, 7):
+                self.live_lag[side].add(layer, stamp_ns * 1e-9, poses)
+        except (ValueError, IndexError):
+            pass  # a malformed frame: the tracking node rejects and counts it; the recorder only records
 
     def collect_diagnostics(self):
         """What is recorded, and each hand's live lag ({side}_sim_lag_ms, ...; module doc)."""
