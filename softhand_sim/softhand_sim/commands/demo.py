@@ -244,6 +244,7 @@ def run_demo(bag, out_dir, rate=1.0, params_file=None, preview=True, startup_tim
 
 FIDELITY_LABELS = {"palm_mm": ("palm", "mm"), "palm_deg": ("palm", "deg"), "knuckle_mm": ("knuckles", "mm"),
                    "fingertip_mm": ("fingertips", "mm"), "phalanx_direction_deg": ("phalanx directions", "deg"),
+                   "held_phalanx_deg": ("phalanxes in held poses", "deg"),
                    "pinch_gap_error_mm": ("pinch gap", "mm")}
 
 

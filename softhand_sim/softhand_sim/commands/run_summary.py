@@ -109,7 +109,8 @@ def _pointcloud_fields(msg):
     return pointcloud_to_structured(msg)
 
 
-FIDELITY_KEYS = ("palm_mm", "palm_deg", "knuckle_mm", "fingertip_mm", "phalanx_direction_deg", "pinch_gap_error_mm")
+FIDELITY_KEYS = ("palm_mm", "palm_deg", "knuckle_mm", "fingertip_mm", "phalanx_direction_deg", "held_phalanx_deg",
+                 "pinch_gap_error_mm")
 
 
 def _fidelity(bag_dir, side):

@@ -16,7 +16,12 @@ Figures (positions in mm, angles in degrees; each as median and p95 over states 
 * fingertips: simulated distal bone origin + its length along +x vs tracked F_TIP (5 points);
 * phalanx direction: angle between each simulated digit bone's +x and the tracked segment (15);
 * thumb-index gap: |thumb tip - index tip| tracked and simulated; for states whose tracked gap
-  is below PINCH_GAP the difference simulated - tracked (median, p95 of its magnitude, max).
+  is below PINCH_GAP the difference simulated - tracked (median, p95 of its magnitude, max);
+* held pose: the phalanx direction error of the states at which the tracked hand has been still
+  for HELD_S (`_still`: the joints within HELD_M of their mean over that window), against the tracked
+  directions averaged over the window (tracker noise averaged out): what is left once the hand
+  has settled, e.g. an offset the feedback to the simulated hand leaves (`held_states`,
+  `held_phalanx_deg`).
 """
 from __future__ import annotations
 
@@ -26,6 +31,9 @@ from softhand_sim.physics.rotations import quat_to_matrix
 from softhand_sim.handmodel.skeleton_names import BONE_SEGMENTS, JOINT_INDEX
 
 PINCH_GAP = 0.015  # [m] tracked thumb-index tip gaps below this count as a pinch
+HELD_S = 0.3       # [s] the tracked hand still for this long ...
+HELD_M = 0.006     # [m] ... every joint within this of its mean (1.5 mm tracker noise stays inside)
+HELD_MIN_FRAMES = 10
 _DIGIT_FIRST = (1, 4, 7, 10, 13)
 _DISTAL = (3, 6, 9, 12, 15)
 _TIPS = [JOINT_INDEX[d + "_TIP"] for d in ("THUMB", "INDEX", "MIDDLE", "RING", "LITTLE")]
@@ -38,6 +46,16 @@ def _stats(values_mm) -> dict:
         return dict(median=None, p95=None, max=None)
     return dict(median=round(float(np.median(v)), 2), p95=round(float(np.percentile(v, 95)), 2),
                 max=round(float(v.max()), 2))
+
+
+def _still(window: np.ndarray) -> bool:
+    """Tracked joints (m, 26, 3) held still: no joint's mean moved HELD_M / 2 from the window's
+    first half to its second, and 95 % of the joints' positions within HELD_M of their mean
+    (single noisy frames may stray further)."""
+    half = len(window) // 2
+    drift = np.linalg.norm(window[half:].mean(axis=0) - window[:half].mean(axis=0), axis=1).max()
+    spread = np.percentile(np.linalg.norm(window - window.mean(axis=0), axis=2), 95)
+    return bool(drift < 0.5 * HELD_M and spread < HELD_M)
 
 
 def simulated_points(bones: np.ndarray, bone_length: np.ndarray):
@@ -56,9 +74,11 @@ def fidelity(track_t, track_joints, sim_t, sim_bones, bone_length) -> dict:
     sim_t = np.asarray(sim_t, dtype=np.float64)
     bone_length = np.asarray(bone_length, dtype=np.float64)
     idx = np.searchsorted(track_t, sim_t + 1e-9, side="right") - 1
-    palm, base, tip, direction, gap_t, gap_s = [], [], [], [], [], []
+    palm, base, tip, direction, gap_t, gap_s, held = [], [], [], [], [], [], []
     seg_p = np.array([s[0] for s in BONE_SEGMENTS[1:]])
     seg_d = np.array([s[1] for s in BONE_SEGMENTS[1:]])
+    segs = joints[:, seg_d] - joints[:, seg_p]
+    segs /= np.linalg.norm(segs, axis=2, keepdims=True)
     for k in np.nonzero(idx >= 0)[0]:
         j = joints[idx[k]]
         p0, bases, tips, x = simulated_points(np.asarray(sim_bones[k], dtype=np.float64), bone_length)
@@ -68,6 +88,13 @@ def fidelity(track_t, track_joints, sim_t, sim_bones, bone_length) -> dict:
         seg = j[seg_d] - j[seg_p]
         seg /= np.linalg.norm(seg, axis=1, keepdims=True)
         direction.append(np.degrees(np.arccos(np.clip(np.sum(seg * x[1:], axis=1), -1.0, 1.0))))
+        w0 = np.searchsorted(track_t, track_t[idx[k]] - HELD_S, side="left")
+        window = joints[w0:idx[k] + 1]
+        if (len(window) >= HELD_MIN_FRAMES and track_t[idx[k]] - track_t[w0] >= 0.9 * HELD_S
+                and _still(window)):
+            mean = segs[w0:idx[k] + 1].mean(axis=0)
+            mean /= np.linalg.norm(mean, axis=1, keepdims=True)
+            held.append(np.degrees(np.arccos(np.clip(np.sum(mean * x[1:], axis=1), -1.0, 1.0))))
         gap_t.append(np.linalg.norm(j[_TIPS[0]] - j[_TIPS[1]]))
         gap_s.append(np.linalg.norm(tips[0] - tips[1]))
     gap_t, gap_s = np.array(gap_t), np.array(gap_s)
@@ -85,4 +112,6 @@ def fidelity(track_t, track_joints, sim_t, sim_bones, bone_length) -> dict:
         pinch_gap_error_mm=_stats(np.abs(gap_s[pinch] - gap_t[pinch]) * 1e3),
         pinch_gap_sim_minus_tracked_median_mm=(round(float(np.median(gap_s[pinch] - gap_t[pinch])) * 1e3, 1)
                                                if pinch.any() else None),
+        held_states=len(held),
+        held_phalanx_deg=_stats(held),
     )
