@@ -22,6 +22,7 @@ search's interpolation of the tracked frames, at a quarter of the cost.
 """
 from __future__ import annotations
 
+import threading
 from collections import deque
 
 import numpy as np
@@ -60,6 +61,7 @@ class LiveLag:
         self.adapter = TrackerAdapter(AdapterConfig(hand=hand))  # the tracking node's default conversion
         self.window_s = float(window_s)
         self._data = {layer: deque() for layer in LAYERS}
+        self._lock = threading.Lock()  # add() in the recorder's callbacks, report() in its own thread
 
     def add_frame(self, t: float, joints) -> None:
         """A tracker frame (26, 3|7) captured at t [s]; one the adapter rejects is left out."""
@@ -71,21 +73,23 @@ class LiveLag:
         """Bones (16, 7) of `layer` at time t [s]. A sample older than the layer's last is dropped;
         one older by more than the window (a replay restarted its clock) starts the layer afresh."""
         buf = self._data[layer]
-        if buf and t <= buf[-1][0]:
-            if t >= buf[-1][0] - self.window_s:
+        with self._lock:
+            if buf and t <= buf[-1][0]:
+                if t >= buf[-1][0] - self.window_s:
+                    return
+                buf.clear()
+            if layer == "intermediate" and buf and t - buf[-1][0] < 1.0 / INTERMEDIATE_HZ:
                 return
-            buf.clear()
-        if layer == "intermediate" and buf and t - buf[-1][0] < 1.0 / INTERMEDIATE_HZ:
-            return
-        buf.append((float(t), np.array(poses, dtype=np.float64)))
-        while buf and buf[0][0] < t - self.window_s:
-            buf.popleft()
+            buf.append((float(t), np.array(poses, dtype=np.float64)))
+            while buf and buf[0][0] < t - self.window_s:
+                buf.popleft()
 
     def _series(self, layer: str) -> Series | None:
-        buf = self._data[layer]
-        if len(buf) < 3:
+        with self._lock:
+            rows = list(self._data[layer])
+        if len(rows) < 3:
             return None
-        return Series(np.array([t for t, _ in buf]), np.stack([p for _, p in buf]))
+        return Series(np.array([t for t, _ in rows]), np.stack([p for _, p in rows]))
 
     def report(self) -> dict:
         """intermediate_lag_ms (phalanx directions), sim_lag_ms (phalanx directions) and

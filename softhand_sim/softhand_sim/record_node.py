@@ -57,6 +57,7 @@ from __future__ import annotations
 import argparse
 import os
 import sys
+import threading
 import time
 
 from rclpy.node import Node
@@ -152,13 +153,25 @@ class RecordNode(Node):
         self.create_timer(cfg["discovery_period"], self._discover)
         self.create_timer(cfg["flush_period"], lambda: flush_chunk(self.writer))
         self.create_timer(cfg["progress_period"], self._progress)
-        self.live_lag = {}  # side -> LiveLag, made at the side's first message (live_lag.py)
+        # side -> LiveLag (live_lag.py), made here: made at a side's first message, its ~0.9 s of
+        # imports and set-up blocked the callbacks, and a writer keeping the last 10 samples (/tf
+        # at 60 Hz) overwrote some the recorder had not yet taken
+        self.live_lag = {}
+        self.lag_sides = set()  # the sides heard from: only those are reported
         self.lag_feeds = {}  # topic -> (side, layer) for the topics the live lag reads
+        self.lag_values = {}  # side -> the last report, made in a thread of its own (_lag_reports)
         if cfg["live_lag"]:
+            from softhand_sim.live_lag import LiveLag
+            self.live_lag = {side: LiveLag(hand=side) for side in SIDES}
             for side in SIDES:
                 self.lag_feeds.update({tracker_topic(side): (side, "tracked"),
                                        hand_topic(side, "intermediate_bones"): (side, "intermediate"),
                                        hand_topic(side, "bones"): (side, "sim")})
+            # a report takes ~50 ms per hand: in the executor's thread it held back the recording's
+            # callbacks that long every second, so it runs in a daemon thread of its own
+            self._lag_stop = threading.Event()
+            threading.Thread(target=self._lag_reports, args=(1.0 / cfg["diagnostics_rate"],), name="live-lag",
+                             daemon=True).start()
         DiagnosticsPublisher(self, self.collect_diagnostics, period=1.0 / cfg["diagnostics_rate"],
                              name=diagnostic_name(self.get_name(), "recording"))
         self.get_logger().info(f"recording into {output}: {', '.join(self.wanted)}")
@@ -282,9 +295,7 @@ class RecordNode(Node):
             poses, stamp_ns, _frame = pose_array_from_cdr(raw)
         except ValueError:
             return  # not ours to judge: recorded as it came
-        if side not in self.live_lag:
-            from softhand_sim.live_lag import LiveLag
-            self.live_lag[side] = LiveLag(hand=side)
+        self.lag_sides.add(side)
         try:
             if layer == "tracked":
                 self.live_lag[side].add_frame(stamp_ns * 1e-9, poses)
@@ -293,12 +304,17 @@ class RecordNode(Node):
         except (ValueError, IndexError):
             pass  # a malformed frame: the tracking node rejects and counts it; the recorder only records
 
+    def _lag_reports(self, period: float) -> None:
+        while not self._lag_stop.wait(period):
+            for side in sorted(self.lag_sides.copy()):  # copy(): the callbacks add to it
+                self.lag_values[side] = self.live_lag[side].report()
+
     def collect_diagnostics(self):
         """What is recorded, and each hand's live lag ({side}_sim_lag_ms, ...; module doc)."""
         values = {"messages": sum(self.counts.values()), "megabytes": round(self.bytes / 1e6, 2),
                   "topics": len(self.conns)}
-        for side, lag in self.live_lag.items():
-            values.update({f"{side}_{key}": value for key, value in lag.report().items()})
+        for side, report in sorted(self.lag_values.items()):
+            values.update({f"{side}_{key}": value for key, value in report.items()})
         return values, "ok", f"recording into {self.output}"
 
     # --------------------------------------------------------------------------------- logging
@@ -315,6 +331,8 @@ class RecordNode(Node):
         """Finish the bag (pending chunk, summary, metadata.yaml); safe to call twice."""
         if self._closed:
             return
+        if self.live_lag:
+            self._lag_stop.set()
         for topic, conn in self.conns.items():
             if conn is None:  # subscribed, never received: listed with 0 messages, like rosbag2
                 self._open_connection(topic)
