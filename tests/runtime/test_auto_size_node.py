@@ -36,7 +36,9 @@ def test_sim_node_sizes_the_hand_on_the_first_second(ros_env):
     with RosGraph(ros_env) as g:
         diag = g.listen("/diagnostics", DiagnosticArray)
         bones = g.listen("/hand/right/bones", PoseArray)
-        sim = g.start(["softhand-sim", *ARGS, "-p", "hand_measures:=auto"])
+        # /diagnostics at 20 Hz here: a size already in the model cache is ready in ~0.4 s, which at
+        # 4 Hz left room for one `building` status only (the check below wants two)
+        sim = g.start(["softhand-sim", "--ros-args", "-p", "diagnostics_rate:=20.0", "-p", "hand_measures:=auto"])
         tracking = g.start(["softhand-tracking", *ARGS, "-p", "hand_measures:=auto"])
         g.wait_until(lambda: latest(diag, "sim_node") is not None, 120, "sim_node diagnostics", sim)
         g.wait_until(lambda: latest(diag, "tracking_node") is not None, 120, "tracking_node diagnostics", tracking)
@@ -54,7 +56,7 @@ def test_sim_node_sizes_the_hand_on_the_first_second(ros_env):
                                                            "palm_width_mm", "steps")}, "expected", round(expected, 1))
         building = [rm.diagnostic_values(st) for m in diag.msgs for st in m.status
                     if rm.status_node(st.name) == "sim_node" and rm.diagnostic_values(st).get("hand_size_state") == "building"]
-        print(f"{len(building)} sim_node /diagnostics while the hand was being made (4 Hz)")
+        print(f"{len(building)} sim_node /diagnostics while the hand was being made (20 Hz)")
         assert len(building) >= 2  # the node kept spinning while the worker made the hand
         assert v["hand_measures_source"] == "auto"
         assert abs(float(v["hand_length_mm"]) - expected) < 2.0 and abs(float(v["hand_length_mm"]) - 190.0) > 20.0
