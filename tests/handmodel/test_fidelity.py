@@ -2,6 +2,7 @@
 own joints and bones agree to rounding; a known shift, a known turn and a wrong size give the
 known errors."""
 import numpy as np
+import pytest
 
 from softhand_sim.handmodel.fidelity import fidelity
 from softhand_sim.handmodel.kinematics import DIGIT_LIMITS, HandDims, forward_kinematics
@@ -165,8 +166,6 @@ def test_fidelity_of_a_recording_reports_lag_orientation_and_frames(tmp_path):
     assert offset["palm_deg"]["max"] < 1e-3
     assert abs(offset["lag_ms"]["sim"]["phalanx"]) < 0.5
 
-
-import pytest  # noqa: E402
 
 
 @pytest.mark.parametrize("bag, tips_median, tips_p95, knuckles, phalanx", [
