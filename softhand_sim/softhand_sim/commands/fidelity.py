@@ -83,6 +83,18 @@ def recorded_measures(bag):
     return None, None
 
 
+def bone_lengths_of(bag, spec=None):
+    """(bone lengths [m] (16,), label) of the hand to score a recording with: --measures `spec` if
+    given, else the lengths sim_node reported in it, else the default hand's."""
+    from softhand_sim.handmodel.skeleton import build_skeleton
+    if spec is None:
+        lengths, source = recorded_measures(bag)
+        if lengths is not None:
+            return lengths, f"recorded ({source})"
+    label = spec or "default (the recording names no bone lengths)"
+    return build_skeleton(measures_for(spec, bag))["bone_length"], label
+
+
 def recorded_fidelity(bag, bone_length, side="right"):
     """The figures of hand `side` in a recording (/tracker/{side}/hand_joints vs /hand/{side}/bones),
     with its lag, palm orientation error and frame counts (module docstring); bone_length: the
@@ -172,14 +184,7 @@ def main(argv=None):
             if not sides:
                 raise ValueError(f"{args.bag} holds no hand with both /tracker/{{side}}/hand_joints and "
                                  "/hand/{side}/bones")
-            bone_length, source = recorded_measures(args.bag) if args.measures is None else (None, None)
-            if bone_length is not None:
-                measures_used = f"recorded ({source})"
-            else:
-                from softhand_sim.handmodel.skeleton import build_skeleton
-                bone_length = build_skeleton(measures_for(args.measures, args.bag))["bone_length"]
-                if args.measures is None:
-                    measures_used = "default (the recording names no bone lengths)"
+            bone_length, measures_used = bone_lengths_of(args.bag, args.measures)
             per_hand = {side: recorded_fidelity(args.bag, bone_length, side) for side in sides}
             figures = dict(hand=sides[0], **per_hand[sides[0]]) if len(sides) == 1 else {"hands": per_hand}
     except (BagError, ValueError) as exc:

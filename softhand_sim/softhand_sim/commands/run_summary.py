@@ -116,13 +116,9 @@ FIDELITY_KEYS = ("palm_mm", "palm_deg", "knuckle_mm", "fingertip_mm", "phalanx_d
 def _fidelity(bag_dir, side):
     """(lag {layer: {phalanx, palm}} [ms], errors {FIDELITY_KEYS: {median, p95, max}}) of one hand
     (softhand fidelity on the recording); ({}, {}) where they cannot be told."""
-    from softhand_sim.commands.fidelity import recorded_fidelity, recorded_measures
-    from softhand_sim.handmodel.measures import HandMeasures
-    from softhand_sim.handmodel.skeleton import build_skeleton
+    from softhand_sim.commands.fidelity import bone_lengths_of, recorded_fidelity
     from softhand_sim.ros.bagio import BagError
-    bone_length = recorded_measures(bag_dir)[0]
-    if bone_length is None:
-        bone_length = build_skeleton(HandMeasures())["bone_length"]
+    bone_length = bone_lengths_of(bag_dir)[0]
     try:
         f = recorded_fidelity(bag_dir, bone_length, side)
     except (ValueError, BagError):
