@@ -29,7 +29,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from softhand_sim.physics.contact import detection as contact_mod
-from softhand_sim.physics.contact.hand_self_contact import NO_BONE, SKIN_OBJECT, HandSelfContact
+from softhand_sim.physics.contact.hand_self_contact import HandSelfContact
+from softhand_sim.topics import NO_BONE, SKIN_OBJECT
 from softhand_sim.physics.control import Control
 from softhand_sim.physics.coupling import ObjectCopy, limit_coupling_stiffness
 from softhand_sim.physics.coupling import warm_up as coupling_warm_up

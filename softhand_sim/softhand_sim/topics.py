@@ -36,6 +36,12 @@ SHARED_TOPICS = {
     "/tf_static": "tf2_msgs/msg/TFMessage",
 }
 
+# /hand/contacts (docs/INTERFACE.md): the `object` of a skin-on-skin contact (sim parameter
+# self_contact), and the `bone` / `other_hand` / `other_bone` where there is none (an object
+# contact's other side; recordings made before those fields existed)
+SKIN_OBJECT = 0xFFFFFFFF
+NO_BONE = 255
+
 
 def check_side(side: str) -> str:
     """side, or ValueError naming it when it is neither 'right' nor 'left'."""

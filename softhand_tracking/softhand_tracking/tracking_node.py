@@ -31,7 +31,7 @@ from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 from softhand_sim.params import ParamError
-from softhand_sim.physics.contact.hand_self_contact import SKIN_OBJECT
+from softhand_sim.topics import SKIN_OBJECT
 from softhand_sim.physics.hands import HAND_CODE
 from softhand_sim.ros.common import (LATEST_QOS, STREAM_QOS, DiagnosticsPublisher, RateMeter,
                                      fail, run_node, split_cli, take_pending)

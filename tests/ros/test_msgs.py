@@ -114,7 +114,7 @@ def test_xyz_cloud_round_trip_float32():
 
 
 def test_contacts_cloud_round_trip_all_fields():
-    from softhand_sim.physics.contact.hand_self_contact import SKIN_OBJECT
+    from softhand_sim.topics import SKIN_OBJECT
 
     """Contacts cloud has the 15 docs/INTERFACE.md fields with their types and round-trips each of
     them; 48 bytes a point; a cloud written before the hand field existed reads as the right

@@ -8,7 +8,7 @@ import pytest
 
 from softhand_sim.handmodel.kinematics import forward_kinematics
 from softhand_sim.params import load_params
-from softhand_sim.physics.contact.hand_self_contact import NO_BONE, SKIN_OBJECT
+from softhand_sim.topics import NO_BONE, SKIN_OBJECT
 from softhand_sim.runtime import SimRuntime
 from softhand_sim.scenarios.tracker_bags import OPEN_ANGLES, PALM_DOWN, tip_pinch_angles
 from softhand_tracking.adapter import TrackerAdapter

@@ -120,7 +120,7 @@ def recorded_fidelity(bag, bone_length, side="right"):
 def skin_contact_counts(bag, side="right") -> dict:
     """Skin-on-skin contacts of hand `side` in a recording's /hand/contacts (sim parameter
     self_contact): the most in one step and the steps with any; zeros without the topic."""
-    from softhand_sim.physics.contact.hand_self_contact import SKIN_OBJECT
+    from softhand_sim.topics import SKIN_OBJECT
     from softhand_sim.physics.hands import HAND_CODE
     from softhand_sim.ros.bagio import BagError, deserialize, read_topic
     from softhand_sim.ros.msgs import pointcloud_to_structured

@@ -36,7 +36,7 @@ from pathlib import Path
 
 import numpy as np
 
-from softhand_sim.physics.contact.hand_self_contact import SKIN_OBJECT
+from softhand_sim.topics import SKIN_OBJECT
 from softhand_sim.params import load_params, safe_load
 from softhand_sim.paths import bags_dir
 from softhand_sim.physics.rotations import quat_to_matrix

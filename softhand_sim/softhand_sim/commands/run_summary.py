@@ -40,7 +40,7 @@ from pathlib import Path
 
 import numpy as np
 
-from softhand_sim.physics.contact.hand_self_contact import SKIN_OBJECT
+from softhand_sim.topics import SKIN_OBJECT
 from softhand_sim.topics import LEGACY_TRACKER, SIDES, hand_topic, side_of, tracker_topic
 
 LIFT_OBJECT = "ball"

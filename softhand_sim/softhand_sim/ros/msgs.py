@@ -254,9 +254,7 @@ CONTACT_DTYPE = np.dtype({
     "offsets": [0, 4, 8, 12, 16, 20, 24, 28, 32, 36, 40, 41, 42, 43, 44],
     "itemsize": 48,
 })
-# the `bone` / `other_hand` / `other_bone` where there is none (object contacts' other side, older
-# recordings); skin-skin contacts' `object` is hand_self_contact.SKIN_OBJECT
-from softhand_sim.physics.contact.hand_self_contact import NO_BONE  # noqa: E402
+from softhand_sim.topics import NO_BONE  # noqa: E402  (none of `bone` / `other_hand` / `other_bone`)
 _OPTIONAL_CONTACT_FIELDS = ("hand", "bone", "other_hand", "other_bone")  # absent from older recordings
 XYZ_DTYPE = np.dtype({"names": ["x", "y", "z"], "formats": [np.float32] * 3, "offsets": [0, 4, 8], "itemsize": 12})
 

@@ -18,10 +18,9 @@ import numpy as np
 
 from softhand_sim.handmodel.rigid_skin import skin_segments
 from softhand_sim.physics.contact.self_contact import build_self_contact_system
+from softhand_sim.topics import SKIN_OBJECT  # the contract's value of `object` on /hand/contacts
 
 BONES = 16
-SKIN_OBJECT = 0xFFFFFFFF  # the `object` of a skin-skin contact (ros.msgs.SKIN_OBJECT)
-NO_BONE = 255
 
 
 def union_skin_segments(assets, layout):
