@@ -100,6 +100,28 @@ def test_object_copy_counts_gaps():
     assert copy.gaps == 2
 
 
+def test_object_copy_counts_a_link_outage_once_when_the_stream_resends_it():
+    """A step every 10 ms, a copy every 10 ms; the link is down from t = 1.0 to 2.0 s and the
+    reliable stream then delivers the copies it held back, every stamp, in a burst: the step saw
+    the copy stale (decoupled) and the outage counts one gap, though no two stamps are more than
+    `timeout` apart. The burst's older copies, stale as they come, do not count again."""
+    copy = ObjectCopy("ball", timeout=0.25)
+    pose = [0, 0, 1.0, 0, 0, 0, 1.0]
+    stamps = np.round(np.arange(0.0, 3.0, 0.01), 6)
+    held = []
+    stale_steps = 0
+    for t in stamps:
+        if 1.0 <= t < 2.0:
+            held.append(t)  # sent while the link is down: resent when it is back
+        else:
+            for s in held + [t]:
+                copy.update(pose, np.zeros(6), np.zeros(6), s)
+            held = []
+        stale_steps += copy.is_stale(t + 0.005)  # the step between two copies
+    assert stale_steps > 50  # decoupled for most of the outage
+    assert copy.gaps == 1
+
+
 @pytest.mark.parametrize("bad", [
     dict(pose=[0, 0, np.nan, 0, 0, 0, 1]), dict(twist=[0, 0, 0, np.inf, 0, 0]), dict(pose=[0, 0, 0, 0, 0, 0, 0]),
     dict(accel=[0, 0, 0]), dict(stamp=float("nan"))])

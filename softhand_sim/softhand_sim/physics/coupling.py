@@ -94,7 +94,11 @@ class ObjectCopy:
     `extrapolate` is False (the explicit copy the paper warns about, kept for comparison).
     `is_stale(t)` is True when no copy arrived or the newest is older than `timeout` [s]: a stale
     copy must not be coupled to (the object is left to its own simulation). `gaps` counts the
-    copies stamped more than `timeout` after the one before (a lost link, a stopped peer).
+    decouplings that ended (a lost link, a stopped peer): a copy that arrives fresh (as of the last
+    time `is_stale` was asked) after the step had seen the copy stale. A reliable stream that
+    resends what a dead link held back delivers every stamp, late: the lapse shows only against
+    the step's time. Without a step time (no `is_stale` call yet) a copy stamped more than
+    `timeout` after the one before counts.
 
     Both simulations advance positions with the END-of-step velocity (backward Euler on the hand
     side, symplectic Euler in pybullet), so under constant acceleration a their sampled positions
@@ -116,7 +120,9 @@ class ObjectCopy:
         self.stamp = -np.inf
         self.source_dt = source_dt
         self._stamp_step = 0.0  # spacing of the last two stamps [s]
-        self.gaps = 0  # copies that came more than `timeout` after the previous one (each ends a decoupling)
+        self.gaps = 0  # decouplings that ended (see the class's doc)
+        self._seen_t = None  # the latest time is_stale was asked at (the step's time)
+        self._lapsed = False  # the step saw this copy stale since the last fresh one
 
     def update(self, pose, twist, accel, stamp):
         """Store a copy; raises ValueError naming the object on bad shapes or non-finite values."""
@@ -131,13 +137,20 @@ class ObjectCopy:
         pose = pose.copy()
         pose[3:7] /= qn
         gap = float(stamp) - self.stamp
-        if self.pose is not None and gap > self.timeout:
-            self.gaps += 1
+        if self.pose is not None:
+            if self._seen_t is None:
+                self.gaps += gap > self.timeout
+            elif (self._lapsed or gap > self.timeout) and self._seen_t - float(stamp) <= self.timeout:
+                self.gaps += 1  # this copy ends the lapse (older resent ones do not)
+                self._lapsed = False
         self._stamp_step = gap if 0.0 < gap <= self.timeout else 0.0
         self.pose, self.twist, self.accel, self.stamp = pose, twist.copy(), accel.copy(), float(stamp)
 
     def is_stale(self, t):
-        return self.pose is None or (t - self.stamp) > self.timeout
+        stale = self.pose is None or (t - self.stamp) > self.timeout
+        self._seen_t = t
+        self._lapsed |= stale and self.pose is not None
+        return stale
 
     def age(self, t):
         return t - self.stamp

@@ -3,7 +3,9 @@
 Without ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST, Fast DDS multicasts discovery on every network
 interface; with it, no packet leaves loopback. A ROS_DOMAIN_ID of its own keeps parallel runs
 (two test sessions, a demo beside the tests) from hearing each other. ROS_LOCALHOST_ONLY is
-deprecated in Jazzy, so it is removed rather than set.
+deprecated in Jazzy, so it is removed rather than set. A Fast DDS profile file named by the user's
+environment (config/fastdds_lan.xml for a LAN) is removed too: under LOCALHOST, rmw adds its
+loopback transport to the profile's transports, so the profile's UDP on every interface would stay.
 """
 import fcntl
 import os
@@ -15,6 +17,8 @@ import tempfile
 _DOMAIN_LOW, _DOMAIN_HIGH = 20, 230
 _LOCK_DIR = os.path.join(tempfile.gettempdir(), "softhand-ros-domains")
 _held = {}  # domain id -> open lock file (the flock lasts while this process keeps it open)
+# Fast DDS 2.x reads the first, 3.x the second
+PROFILE_VARIABLES = ("FASTRTPS_DEFAULT_PROFILES_FILE", "FASTDDS_DEFAULT_PROFILES_FILE")
 
 
 def pick_domain_id(seed=None) -> int:
@@ -55,6 +59,8 @@ def isolated_env(domain_id=None, base=None) -> dict:
     env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
     env["ROS_DOMAIN_ID"] = str(pick_domain_id() if domain_id is None else int(domain_id))
     env.pop("ROS_LOCALHOST_ONLY", None)
+    for name in PROFILE_VARIABLES:
+        env.pop(name, None)
     env.setdefault("PYTHONUNBUFFERED", "1")
     return env
 
@@ -64,5 +70,6 @@ def apply_isolated_env(domain_id=None) -> dict:
     env = isolated_env(domain_id)
     for key in ("ROS_AUTOMATIC_DISCOVERY_RANGE", "ROS_DOMAIN_ID", "PYTHONUNBUFFERED"):
         os.environ[key] = env[key]
-    os.environ.pop("ROS_LOCALHOST_ONLY", None)
+    for name in ("ROS_LOCALHOST_ONLY", *PROFILE_VARIABLES):
+        os.environ.pop(name, None)
     return env
