@@ -10,35 +10,18 @@ from softhand_sim.handmodel.kinematics import forward_kinematics
 from softhand_sim.params import load_params
 from softhand_sim.topics import NO_BONE, SKIN_OBJECT
 from softhand_sim.runtime import SimRuntime
-from softhand_sim.scenarios.tracker_bags import OPEN_ANGLES, PALM_DOWN, tip_pinch_angles
+from softhand_sim.scenarios.self_contact import runtime_tip_pinch
+from softhand_sim.scenarios.tracker_bags import OPEN_ANGLES, PALM_DOWN
 from softhand_tracking.adapter import TrackerAdapter
 
 DT = 1.0 / 60.0
 THUMB_DISTAL, INDEX_DISTAL = 3, 6
 
 
-def pinch_run(self_contact: bool, steps: int = 90):
+def pinch_run(self_contact: bool):
     """Open hand above the table, closing into a pinch whose tracked tips are 2 mm apart (the pads,
     ~2 x 8 mm thick, overlap); returns the runtime and the last step's output."""
-    from softhand_sim.handmodel.measures import HandMeasures
-    from softhand_sim.scenarios import tracker_bags
-    rt = SimRuntime(load_params("sim_node", overrides={"self_contact": self_contact}))
-    adapter = TrackerAdapter()
-    old_gap = tracker_bags.TIP_PINCH_GAP
-    tracker_bags.TIP_PINCH_GAP = 0.002
-    try:
-        pinch = tip_pinch_angles(HandMeasures())
-    finally:
-        tracker_bags.TIP_PINCH_GAP = old_gap
-    palm = np.r_[0.1, 0.2, 0.95, PALM_DOWN]
-    out = None
-    for k in range(steps):
-        u = min(1.0, k / 45.0)
-        joints, _ = forward_kinematics(palm, OPEN_ANGLES + u * (pinch - OPEN_ANGLES))
-        rt.set_bone_targets(adapter.convert(joints[:, :3]), k * DT)
-        out = rt.step(DT, k * DT)
-        assert out is not None and not out.rejected, out.warning if out else "no step"
-    return rt, out
+    return runtime_tip_pinch(self_contact, tip_gap=0.002)
 
 
 def tip_gap(rt, out):
@@ -91,3 +74,21 @@ def test_object_contacts_name_their_bone():
     assert len(set(c["bone"].tolist())) >= 2
     from softhand_sim.handmodel.rigid_skin import skin_segments
     np.testing.assert_array_equal(c["bone"], skin_segments(rt.asset)[0][c["point"]])
+
+
+def test_self_pinch_picture_shows_the_pads_flatten(runs, tmp_path):
+    """tools/self_pinch_picture.py (the README's picture) on this module's two pinches: cut through
+    both pads, the outlines overlap over 2 mm without self contact and under 1 mm with it (measured
+    2.7 and 0.85 mm), and the picture is written."""
+    import importlib.util
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[2] / "tools" / "self_pinch_picture.py"
+    spec = importlib.util.spec_from_file_location("self_pinch_picture", path)
+    tool = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(tool)
+    (rt_off, off), (rt, on) = runs
+    f = tool.draw({False: (rt_off, off), True: (rt, on)}, tmp_path / "pinch.png", tip_gap=0.002)
+    assert f["overlap_off_mm"] > 2.0 and f["overlap_on_mm"] < 1.0, f
+    assert f["pad_contacts"] >= 4 and f["deepest_mm"] <= 1.0, f
+    assert (tmp_path / "pinch.png").stat().st_size > 20_000

@@ -199,3 +199,29 @@ def skin_penetration(smodel, node_x, tets, triangles, within=0.003):
         if depth[k] > best[0]:
             best = (float(depth[k]), int(p[k]), t)
     return best
+
+
+def runtime_tip_pinch(self_contact: bool, tip_gap: float = 0.002, steps: int = 90, dt: float = 1.0 / 60.0):
+    """sim_node's runtime (SimRuntime, the default hand, sim_node's parameters with
+    `self_contact`) driven through its bone targets from the open hand above the table into a tip
+    pinch whose tracked tips are `tip_gap` [m] apart (2 mm: the pads, ~2 x 8 mm thick, overlap),
+    over 45 steps, then held. Returns (runtime, the last step's output)."""
+    from softhand_sim.handmodel.measures import HandMeasures
+    from softhand_sim.params import load_params
+    from softhand_sim.runtime import SimRuntime
+    from softhand_sim.scenarios.tracker_bags import OPEN_ANGLES, PALM_DOWN, tip_pinch_angles
+    from softhand_tracking.adapter import TrackerAdapter
+
+    rt = SimRuntime(load_params("sim_node", overrides={"self_contact": self_contact}))
+    adapter = TrackerAdapter()
+    pinch = tip_pinch_angles(HandMeasures(), tip_gap)
+    palm = np.r_[0.1, 0.2, 0.95, PALM_DOWN]
+    out = None
+    for k in range(steps):
+        u = min(1.0, k / 45.0)
+        joints, _ = forward_kinematics(palm, OPEN_ANGLES + u * (pinch - OPEN_ANGLES))
+        rt.set_bone_targets(adapter.convert(joints[:, :3]), k * dt)
+        out = rt.step(dt, k * dt)
+        if out is None or out.rejected:
+            raise RuntimeError(f"pinch step {k} not taken: {out.warning if out else 'no output'}")
+    return rt, out

@@ -426,9 +426,9 @@ LARGE_HAND = scale_measures(HandMeasures(), 0.21 / 0.19, thumb_lengths=(0.050, 0
 TIP_PINCH_GAP = 0.010  # [m] thumb-index tip gap of the tip pinch (the pads' thickness apart)
 
 
-def tip_pinch_angles(measures):
+def tip_pinch_angles(measures, tip_gap: float = TIP_PINCH_GAP):
     """Digit angles (5, 4) [rad] of a tip pinch of the hand at `measures`: thumb and index tips
-    TIP_PINCH_GAP apart, the index flexed moderately, the other fingers open; found by a bounded
+    `tip_gap` [m] apart, the index flexed moderately, the other fingers open; found by a bounded
     least-squares search within DIGIT_LIMITS (deterministic)."""
     from scipy.optimize import least_squares
     dims = HandDims.from_measures(measures)
@@ -445,7 +445,7 @@ def tip_pinch_angles(measures):
     def residual(x):
         j, _ = forward_kinematics(np.r_[0.0, 0.0, 0.0, PALM_DOWN], angles(x), dims)
         gap = np.linalg.norm(j[5, :3] - j[10, :3])
-        return np.r_[10.0 * (gap - TIP_PINCH_GAP) / TIP_PINCH_GAP, 0.3 * (x - want)]
+        return np.r_[10.0 * (gap - tip_gap) / TIP_PINCH_GAP, 0.3 * (x - want)]
 
     x = least_squares(residual, np.clip(want, lo, hi), bounds=(lo, hi)).x
     return angles(x)
