@@ -1,5 +1,7 @@
 """Scripted self-contact scenarios on the hand model (issue #21): a thumb-index pinch of the pads
-pressed 5 mm beyond contact and a tight fist (the fingers curl 1 cm beyond touching the palm).
+pressed 5 mm beyond contact and a tight fist (the fingers curl 1 cm beyond touching the palm);
+on sim_node's runtime, a tight tip pinch (`runtime_tip_pinch`) and two hands pressed palm to palm
+(`PalmsPressed`, `run_palms_pressed`).
 
 Poses are found on the kinematic hand (handmodel.kinematics.forward_kinematics) with each skin
 point carried rigidly by its segment's bone and measured against the other segment's rest field
@@ -225,3 +227,74 @@ def runtime_tip_pinch(self_contact: bool, tip_gap: float = 0.002, steps: int = 9
         if out is None or out.rejected:
             raise RuntimeError(f"pinch step {k} not taken: {out.warning if out else 'no output'}")
     return rt, out
+
+
+class PalmsPressed:
+    """Two hands pressed palm to palm in the air (as in prayer), tracked 2 cm inside each other,
+    then apart: both hands upright (fingers along +x, thumbs up and in the palm plane), mirror
+    images through the plane y = centre's y. `gap` [m] is each tracked palm surface's distance
+    outside that plane (bimanual.PALM_SURFACE below the wrist): START apart, PRESS inside, START
+    again. The skin meets at a gap of about +3.5 mm (the palms' padding), so PRESS = -10 mm
+    drives the tracked hands about 2.7 cm into each other. Times [s] in T."""
+
+    T = dict(approach0=0.3, approach1=1.3, part0=2.3, part1=3.3, end=4.0)
+    START, PRESS = 0.015, -0.010
+    FLAT = np.zeros((5, 4))  # open hands, thumbs in the palm plane (abducted, the thumbs cross)
+
+    def __init__(self, centre):
+        self.centre = np.asarray(centre, dtype=np.float64)
+
+    @property
+    def duration(self):
+        return self.T["end"]
+
+    def gap(self, t):
+        T, travel = self.T, self.START - self.PRESS
+        return (self.START - travel * smoothstep((t - T["approach0"]) / (T["approach1"] - T["approach0"]))
+                + travel * smoothstep((t - T["part0"]) / (T["part1"] - T["part0"])))
+
+    def palms(self, t):
+        """{side: palm (wrist) pose (7,)} at time t."""
+        from softhand_sim.scenarios.bimanual import LEFT_PALM_TO_MINUS_Y, PALM_SURFACE, RIGHT_PALM_TO_PLUS_Y
+        x, y, z = self.centre
+        off = PALM_SURFACE + self.gap(t)
+        return {"right": np.r_[x, y - off, z, RIGHT_PALM_TO_PLUS_Y], "left": np.r_[x, y + off, z, LEFT_PALM_TO_MINUS_Y]}
+
+    def targets(self, t, runtime=None):
+        from softhand_sim.scenarios.bimanual import bone_targets
+        return {side: bone_targets(side, palm, self.FLAT) for side, palm in self.palms(t).items()}
+
+
+def run_palms_pressed(dt: float = 1.0 / 60.0, height: float = 0.30):
+    """PalmsPressed on sim_node's two-hand runtime with self contact, `height` [m] above the
+    scene's table (clear of its objects). Per step: {t, gap (tracked), contacts between the hands,
+    within one hand, deepest [m] skin point under the other hand's skin, force [N] the left hand
+    pushes the right with, wrist distance [m], smallest signed tet volume [m^3], finite}."""
+    from softhand_sim.params import load_params
+    from softhand_sim.runtime import SimRuntime
+    from softhand_sim.scenarios.bimanual import _signed_volumes, _table_top
+    from softhand_sim.topics import SKIN_OBJECT
+
+    rt = SimRuntime(load_params("sim_node", overrides={"hands": ["right", "left"], "self_contact": True}))
+    script = PalmsPressed([0.0, 0.0, _table_top(rt.scene) + height])
+    rows = []
+    for k in range(int(round(script.duration / dt))):
+        t = k * dt
+        for side, poses in script.targets(t).items():
+            rt.set_bone_targets(poses, t, hand=side)
+        out = rt.step(dt, t)
+        if out is None or out.rejected:
+            raise RuntimeError(f"palms pressed: step {k} not taken: {out.warning if out else 'no output'}")
+        c = out.contacts
+        skin = c["objects"] == SKIN_OBJECT
+        between = skin & (c["other_hand"] != c["hand"])
+        # a contact's force acts on its point's skin, its reaction on the other hand's: the net push
+        # on the right hand (at -y) from the left
+        push = c["forces"][between & (c["hand"] == 0)].sum(axis=0) - c["forces"][between & (c["hand"] == 1)].sum(axis=0)
+        rows.append({"t": t, "gap": script.gap(t), "between": int(between.sum()), "within": int((skin & ~between).sum()),
+                     "depth": float(np.max(c["depth"][between])) if between.any() else 0.0,
+                     "force": float(-push[1]),
+                     "wrists": float(np.linalg.norm(out.hands["left"].bone_poses[0, :3] - out.hands["right"].bone_poses[0, :3])),
+                     "min_tet_volume": float(_signed_volumes(out.node_x, rt.model.tets).min()),
+                     "finite": bool(np.all(np.isfinite(out.node_x)))})
+    return script, rows
