@@ -40,8 +40,7 @@ from pathlib import Path
 
 import numpy as np
 
-from softhand_sim.topics import SKIN_OBJECT
-from softhand_sim.topics import LEGACY_TRACKER, SIDES, hand_topic, side_of, tracker_topic
+from softhand_sim.topics import LEGACY_TRACKER, SIDES, SKIN_OBJECT, hand_topic, side_of, tracker_topic
 
 LIFT_OBJECT = "ball"
 TRACKING_NODE = "tracking_node"  # the second hand's runs as tracking_node_left (status names carry it)

@@ -29,6 +29,8 @@ from std_msgs.msg import ColorRGBA, Header
 from trajectory_msgs.msg import MultiDOFJointTrajectory, MultiDOFJointTrajectoryPoint
 from visualization_msgs.msg import Marker, MarkerArray
 
+from softhand_sim.topics import NO_BONE  # `bone` / `other_hand` / `other_bone` where there is none
+
 WORLD_FRAME = "world"
 _NS_PER_S = 1_000_000_000
 
@@ -254,7 +256,6 @@ CONTACT_DTYPE = np.dtype({
     "offsets": [0, 4, 8, 12, 16, 20, 24, 28, 32, 36, 40, 41, 42, 43, 44],
     "itemsize": 48,
 })
-from softhand_sim.topics import NO_BONE  # noqa: E402  (none of `bone` / `other_hand` / `other_bone`)
 _OPTIONAL_CONTACT_FIELDS = ("hand", "bone", "other_hand", "other_bone")  # absent from older recordings
 XYZ_DTYPE = np.dtype({"names": ["x", "y", "z"], "formats": [np.float32] * 3, "offsets": [0, 4, 8], "itemsize": 12})
 
