@@ -17,3 +17,20 @@ def test_isolated_env_is_loopback_only_even_with_a_lan_profile_exported():
         assert base["FASTRTPS_DEFAULT_PROFILES_FILE"]  # the caller's dict is left as it was
     finally:
         release_domain_id(env["ROS_DOMAIN_ID"])
+
+
+def test_discovery_note_names_the_range_and_warns_of_a_leaking_combination():
+    """What a node logs at start: nothing on loopback (the demo and the tests); a warning when a
+    Fast DDS profile is exported under LOCALHOST (its transports would stay on every interface);
+    on a LAN the range, the domain and the profile in use, or where to find one."""
+    from softhand_sim.ros.env import discovery_note
+
+    assert discovery_note({"ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST", "ROS_DOMAIN_ID": "42"}) is None
+    level, text = discovery_note({"ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST",
+                                  "FASTRTPS_DEFAULT_PROFILES_FILE": "/x/fastdds_lan.xml"})
+    assert level == "warn" and "/x/fastdds_lan.xml" in text and "every interface" in text
+    level, text = discovery_note({"ROS_AUTOMATIC_DISCOVERY_RANGE": "SUBNET", "ROS_DOMAIN_ID": "42",
+                                  "FASTRTPS_DEFAULT_PROFILES_FILE": "/x/fastdds_lan.xml"})
+    assert level == "info" and "SUBNET" in text and "42" in text and "/x/fastdds_lan.xml" in text
+    level, text = discovery_note({})  # nothing set: ROS's default range, domain 0, no profile
+    assert level == "info" and "default" in text and "ROS_DOMAIN_ID 0" in text and "fastdds_lan.xml" in text

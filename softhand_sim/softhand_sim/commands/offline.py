@@ -39,6 +39,7 @@ import numpy as np
 from softhand_sim.topics import SKIN_OBJECT
 from softhand_sim.params import load_params, safe_load
 from softhand_sim.paths import bags_dir
+from softhand_sim.physics.hands import HAND_CODE
 from softhand_sim.physics.rotations import quat_to_matrix
 from softhand_sim.scene import load_scene
 from softhand_sim.runtime import SimRuntime
@@ -47,13 +48,15 @@ from softhand_tracking.loop import LoopConfig, TrackingLoop
 from softhand_world.world import World, WorldConfig
 
 MSGTYPE = "geometry_msgs/msg/PoseArray"
+BAG_PARAMS = "params.yaml"  # beside a bag: the node parameters its scene needs (as commands/demo.py reads it)
 _FRAME, _LOOP, _WORLD, _SIM_OUT, _SIM = range(5)  # tie-break order of simultaneous events
 
 
-def read_frames(bag=None, synth=None, side="right"):
+def read_frames(bag=None, synth=None, side="right", t0_ns=None):
     """(times [s] from the first frame, joints (n, 26, 7)) of hand `side` in a bag (name in bags/ or
     directory: its /tracker/{side}/hand_joints, or an old bag's /tracker/hand_joints) or, with
-    synth=<scenario name>, of tracker_bags.sample directly (no file)."""
+    synth=<scenario name>, of tracker_bags.sample directly (no file). t0_ns: the time origin
+    [ns] instead of this hand's first frame (both hands of a bag on one timeline)."""
     if synth is not None:
         from softhand_sim.scenarios.tracker_bags import sample
         stamps, joints, _ = sample(synth)
@@ -69,7 +72,16 @@ def read_frames(bag=None, synth=None, side="right"):
             joints.append([(p.position.x, p.position.y, p.position.z, p.orientation.x, p.orientation.y,
                             p.orientation.z, p.orientation.w) for p in msg.poses])
         stamps, joints = np.asarray(data.stamps_ns, dtype=np.int64), np.asarray(joints, dtype=float)
-    return (stamps - stamps[0]) * 1e-9, joints
+    return (stamps - (stamps[0] if t0_ns is None else int(t0_ns))) * 1e-9, joints
+
+
+def first_stamp_ns(bag, side):
+    """The header stamp [ns] of hand `side`'s first tracker frame in a bag."""
+    from softhand_sim.ros.bagio import read_tracker
+    path = Path(bag)
+    if not path.exists():
+        path = bags_dir() / str(bag)
+    return int(read_tracker(path, side).stamps_ns[0])
 
 
 @dataclass
@@ -126,16 +138,31 @@ class PipelineResult:
 
 
 def run_pipeline(bag=None, synth=None, until=None, sim_latency=None, sim_overrides=None,
-                 world_overrides=None, tracking_overrides=None, params_file=None, progress=None, asset=None):
+                 world_overrides=None, tracking_overrides=None, params_file=None, progress=None, asset=None,
+                 hands=None, track_object="ball"):
     """Run the pipeline over a bag (or synth scenario) until `until` [s] (default: end + 2 s).
     asset: the HandAsset to simulate (default: the sim_node parameters' hand). The hand is the
     tracking parameters' `hand` (tracking_overrides={"hand": "left"} runs a left-hand bag): its
-    frames are read and the sim simulates that side."""
+    frames are read and the sim simulates that side. hands=["right", "left"] runs both hands of a
+    two-hand bag (a bag only; one tracking loop per hand, as one tracking node each, on the bag's
+    one timeline). The records' object (the `ball_*` fields, in the first hand's palm frame) is
+    `track_object`. Without a params_file, a bag's own params.yaml (the node parameters its scene
+    needs, as `softhand demo` passes them) is read when it has one."""
+    if params_file is None and bag is not None:
+        path = Path(bag) if Path(bag).exists() else bags_dir() / str(bag)
+        params_file = path / BAG_PARAMS if (path / BAG_PARAMS).is_file() else None
     sp = load_params("sim_node", params_file, sim_overrides)
     wp = load_params("world_node", params_file, world_overrides)
     tp = load_params("tracking_node", params_file, tracking_overrides)
-    sp["hand_side"], sp["hands"] = tp["hand"], [tp["hand"]]
-    times, joints = read_frames(bag, synth, side=tp["hand"])
+    hands = [tp["hand"]] if not hands else list(hands)
+    sp["hand_side"], sp["hands"] = hands[0], hands
+    if len(hands) == 1:
+        frames = {hands[0]: read_frames(bag, synth, side=hands[0])}
+    else:
+        if synth is not None:
+            raise ValueError("two hands run from a bag only (synth is one hand)")
+        t0_ns = min(first_stamp_ns(bag, side) for side in hands)
+        frames = {side: read_frames(bag, side=side, t0_ns=t0_ns) for side in hands}
     scene = load_scene(sp["scene_file"] or None)
     runtime = SimRuntime(sp, scene=scene, asset=asset)
     world = World(load_scene(wp["scene_file"] or None), WorldConfig(
@@ -143,19 +170,24 @@ def run_pipeline(bag=None, synth=None, until=None, sim_latency=None, sim_overrid
         copy_timeout=wp["copy_timeout"], extrapolate=wp["extrapolate"], coupling_damping=wp["coupling_damping"],
         coupling_mode=wp["coupling_mode"], coupling_max_omega=wp["coupling_max_omega"], gravity=wp["gravity"]),
         start_time=0.0)
-    adapter = TrackerAdapter(AdapterConfig(hand=tp["hand"], world_from_tracker=np.asarray(tp["tracker_to_world"], float),
-                                           bone_length_min=tp["min_bone_length"], bone_length_max=tp["max_bone_length"]))
-    loop = TrackingLoop(LoopConfig(rate=tp["rate"], tracked_kx=tp["tracked_kx"], tracked_ktheta=tp["tracked_ktheta"],
-                                   sim_kx=tp["sim_kx"], sim_ktheta=tp["sim_ktheta"], damping_ratio=tp["damping_ratio"],
-                                   feedback=tp["feedback"], extrapolate=tp["extrapolate"],
-                                   ref_smoothing=tp["ref_smoothing"]),
-                        adapter, tracker_timeout=tp["tracker_timeout"], sim_timeout=tp["sim_timeout"])
+    loops = {}
+    for side in hands:  # one tracking node per hand
+        adapter = TrackerAdapter(AdapterConfig(hand=side, world_from_tracker=np.asarray(tp["tracker_to_world"], float),
+                                               bone_length_min=tp["min_bone_length"],
+                                               bone_length_max=tp["max_bone_length"]))
+        loops[side] = TrackingLoop(LoopConfig(rate=tp["rate"], tracked_kx=tp["tracked_kx"],
+                                              tracked_ktheta=tp["tracked_ktheta"], sim_kx=tp["sim_kx"],
+                                              sim_ktheta=tp["sim_ktheta"], damping_ratio=tp["damping_ratio"],
+                                              feedback=tp["feedback"], extrapolate=tp["extrapolate"],
+                                              ref_smoothing=tp["ref_smoothing"]),
+                                   adapter, tracker_timeout=tp["tracker_timeout"], sim_timeout=tp["sim_timeout"])
+    loop = loops[hands[0]]
     sim_dt = 1.0 / sp["sim_rate"]
     latency = sim_dt if sim_latency is None else float(sim_latency)
-    end = times[-1] + 2.0 if until is None else float(until)
-    ball = runtime.object_names.index("ball")                   # solver body index
-    ball_contact = list(runtime.contacts.model.object_names).index("ball")  # contact object index
-    wball = world.object_index("ball")
+    end = max(times[-1] for times, _ in frames.values()) + 2.0 if until is None else float(until)
+    ball = runtime.object_names.index(track_object)                   # solver body index
+    ball_contact = list(runtime.contacts.model.object_names).index(track_object)  # contact object index
+    wball = world.object_index(track_object)
 
     events = []
     seq = 0
@@ -165,8 +197,9 @@ def run_pipeline(bag=None, synth=None, until=None, sim_latency=None, sim_overrid
         heapq.heappush(events, (t, kind, seq, payload))
         seq += 1
 
-    for i, t in enumerate(times):
-        push(float(t), _FRAME, i)
+    for side, (times, _) in frames.items():
+        for i, t in enumerate(times):
+            push(float(t), _FRAME, (side, i))
     push(0.0, _LOOP, 0)
     push(world.dt, _WORLD, 1)
     push(0.0, _SIM, 0)
@@ -177,11 +210,13 @@ def run_pipeline(bag=None, synth=None, until=None, sim_latency=None, sim_overrid
         if t > end + 1e-9:
             break
         if kind == _FRAME:
-            loop.on_tracker(joints[payload], t, t)
+            side, i = payload
+            loops[side].on_tracker(frames[side][1][i], t, t)
         elif kind == _LOOP:
-            poses = loop.step(t)
-            if poses is not None:
-                runtime.set_bone_targets(poses, t)
+            for side, hand_loop in loops.items():
+                poses = hand_loop.step(t)
+                if poses is not None:
+                    runtime.set_bone_targets(poses, t, hand=side)
             push((payload + 1) / tp["rate"], _LOOP, payload + 1)
         elif kind == _WORLD:
             world.step()
@@ -191,8 +226,9 @@ def run_pipeline(bag=None, synth=None, until=None, sim_latency=None, sim_overrid
             push((payload + 1) * world.dt, _WORLD, payload + 1)
         elif kind == _SIM_OUT:
             out_t, bones, names, poses, twists, accels, n_contacts = payload
-            loop.on_sim_bones(bones, t)
-            loop.on_contacts(n_contacts, t)  # /hand/contacts: the feedback acts in contact
+            for side, hand_loop in loops.items():
+                hand_loop.on_sim_bones(bones[side], t)
+                hand_loop.on_contacts(n_contacts[side], t)  # /hand/contacts: the feedback acts in contact
             for j, name in enumerate(names):
                 world.set_copy(name, poses[j], twists[j], accels[j], out_t)
         elif kind == _SIM:
@@ -200,14 +236,20 @@ def run_pipeline(bag=None, synth=None, until=None, sim_latency=None, sim_overrid
             push((payload + 1) * sim_dt, _SIM, payload + 1)
             if out is None:
                 continue
-            push(t + latency, _SIM_OUT, (out.t, out.bone_poses.copy(), list(out.object_names),
-                                         out.object_poses.copy(), out.object_twists.copy(),
-                                         out.object_accels.copy(),
-                                         # the feedback gate counts object contacts only (tracking_node)
-                                         int(np.count_nonzero(out.contacts["objects"] != SKIN_OBJECT))))
+            # the feedback gate counts object contacts only, each hand its own (tracking_node)
+            objects = out.contacts["objects"] != SKIN_OBJECT
+            if len(hands) == 1:
+                bones_out = {hands[0]: out.bone_poses.copy()}
+                counts = {hands[0]: int(np.count_nonzero(objects))}
+            else:
+                bones_out = {side: out.hands[side].bone_poses.copy() for side in hands}
+                counts = {side: int(np.count_nonzero(objects & (out.contacts["hand"] == HAND_CODE[side])))
+                          for side in hands}
+            push(t + latency, _SIM_OUT, (out.t, bones_out, list(out.object_names), out.object_poses.copy(),
+                                         out.object_twists.copy(), out.object_accels.copy(), counts))
             c = out.contacts
             on_ball = c["objects"] == ball_contact
-            palm = out.bone_poses[0]
+            palm = out.hands[hands[0]].bone_poses[0] if len(hands) > 1 else out.bone_poses[0]
             be = world_state.pose[wball, :3]
             rec["t"].append(out.t)
             rec["be"].append(be.copy())
@@ -231,7 +273,7 @@ def run_pipeline(bag=None, synth=None, until=None, sim_latency=None, sim_overrid
                           tracked_palm=a["tp"], ball_contacts=a["bc"], ball_force=a["bf"], ball_force_normal=a["bfn"],
                           other_contacts=a["oc"], other_force=a["of"], max_point_force=a["mpf"], skin_min_z=a["skz"],
                           rejected_steps=runtime.rejected_steps, cg_iters=a["cg"],
-                          ball_z0=float(scene.objects[[o.name for o in scene.objects].index("ball")].pose[2]))
+                          ball_z0=float(scene.objects[[o.name for o in scene.objects].index(track_object)].pose[2]))
 
 
 def _overrides(items):
@@ -245,7 +287,7 @@ def _overrides(items):
 
 
 def main(argv=None):
-    ap = argparse.ArgumentParser(prog="softhand offline", description="Run the whole pipeline offline (no ROS, deterministic) over a bag and print the ball's lift, hold and fall.")
+    ap = argparse.ArgumentParser(prog="softhand offline", description="Run the whole pipeline offline (no ROS, deterministic) over a bag and print the ball's (or --object's) lift, hold and fall.")
     ap.add_argument("bag", help="bag name in bags/ or a bag directory (scenario name with --synth)")
     ap.add_argument("--synth", action="store_true", help="sample tracker_bags directly (no bag file)")
     ap.add_argument("--until", type=float, default=None, help="stop at this time [s] (default: end + 2 s)")
@@ -254,12 +296,21 @@ def main(argv=None):
     ap.add_argument("--sim", nargs="*", help="sim_node parameter overrides key=value")
     ap.add_argument("--world", nargs="*", help="world_node parameter overrides key=value")
     ap.add_argument("--tracking", nargs="*", help="tracking_node parameter overrides key=value")
+    ap.add_argument("--hands", nargs="+", choices=("right", "left"), default=None,
+                    help="the hands to run (default: tracking_node's `hand`); both for a two-hand bag")
+    ap.add_argument("--object", default="ball", help="the object whose lift, hold and slip are reported "
+                                                     "(slip in the first hand's palm frame; default ball)")
+    ap.add_argument("--params-file", default=None,
+                    help="ROS params file of the nodes' parameters (default: the bag's params.yaml if it has one)")
     ap.add_argument("--json", help="write the summary here")
     args = ap.parse_args(argv)
+    if args.hands and len(set(args.hands)) != len(args.hands):
+        ap.error(f"--hands names a side twice: {args.hands}")
     t0 = time.monotonic()
     r = run_pipeline(None if args.synth else args.bag, synth=args.bag if args.synth else None, until=args.until,
                      sim_latency=args.latency, sim_overrides=_overrides(args.sim),
-                     world_overrides=_overrides(args.world), tracking_overrides=_overrides(args.tracking))
+                     world_overrides=_overrides(args.world), tracking_overrides=_overrides(args.tracking),
+                     hands=args.hands, track_object=args.object, params_file=args.params_file)
     print(" t[s]  ball_z[mm] lift  hand_z  palm_z track_z  in_palm(x,y,z)[mm]   nC  F[N]  Fn[N] other skin_min_z")
     next_print = 0.0
     for i, t in enumerate(r.t):

@@ -32,6 +32,7 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from rclpy.utilities import remove_ros_args
 
 from softhand_sim.params import ParamError
+from softhand_sim.ros.env import discovery_note
 from softhand_sim.ros.msgs import diagnostic_array, diagnostic_name, diagnostic_status
 from softhand_sim.topics import TOPIC_TYPES
 
@@ -274,6 +275,9 @@ def run_node(make_node: Callable[..., Node], args=None, init_args=None, drain_s:
     executor = make_executor()
     try:
         node = make_node()
+        note = discovery_note()
+        if note is not None:
+            (node.get_logger().warning if note[0] == "warn" else node.get_logger().info)(note[1])
         executor.add_node(node)
         while stop["signal"] is None and rclpy.ok():
             executor.spin_once(timeout_sec=0.1)

@@ -73,3 +73,25 @@ def apply_isolated_env(domain_id=None) -> dict:
     for name in ("ROS_LOCALHOST_ONLY", *PROFILE_VARIABLES):
         os.environ.pop(name, None)
     return env
+
+
+def discovery_note(environ=None):
+    """(level, message) a node logs at start about how it meets the others, or None on loopback as
+    the demo and the tests run it. level is "warn" for the combination that leaks: LOCALHOST with
+    a Fast DDS profile exported (rmw adds its loopback transport to the profile's, so the profile's
+    UDP on every interface stays); "info" for a LAN range, naming the profile in use or the README
+    section that gives one (without it a send to a host whose link is down blocks the node)."""
+    env = os.environ if environ is None else environ
+    rng = env.get("ROS_AUTOMATIC_DISCOVERY_RANGE", "") or "SUBNET (ROS's default)"
+    domain = env.get("ROS_DOMAIN_ID", "") or "0"
+    profile = next((env[name] for name in PROFILE_VARIABLES if env.get(name)), None)
+    if rng == "LOCALHOST":
+        if profile:
+            return ("warn", f"ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST with the Fast DDS profile {profile}: "
+                            "rmw adds loopback to the profile's transports, so DDS still uses every interface "
+                            "the profile names; unset the profile variable for a loopback-only run")
+        return None
+    how = (f"Fast DDS profile {profile}" if profile else
+           "Fast DDS's default transports (across machines, export FASTRTPS_DEFAULT_PROFILES_FILE="
+           "config/fastdds_lan.xml: README, 'Running across machines')")
+    return ("info", f"discovery range {rng}, ROS_DOMAIN_ID {domain}, {how}")
