@@ -10,7 +10,9 @@ config/softhand.yaml, `softhand_sim.params.load_params`):
 * tracker frames: the bag's PoseArray messages (softhand_sim.ros.bagio) or `tracker_bags.sample(name)`,
   delivered at their capture (header) time, as play_node replays them;
 * tracking_node: `TrackingLoop` stepped at its `rate` (250 Hz); each step's intermediate bones
-  become the sim's bone targets at once (sim_node keeps the latest);
+  become the sim's bone targets at once (sim_node keeps the latest). With hands=[right, left]
+  (a two-hand bag) one loop per hand, as one tracking node each, the frames of both on the bag's
+  one timeline;
 * sim_node: `SimRuntime.step(dt, t)` at `sim_rate` (60 Hz). Its outputs (state at t + dt) are
   delivered `sim_latency` [s] after the step starts (default: one sim period, the worst case of a
   node whose step takes its whole period): /hand/bones -> loop.on_sim_bones, /hand/object_states
