@@ -22,12 +22,12 @@ import yaml
 
 from softhand_sim.scenarios.bimanual import TWO_HAND_BAGS, mirror_poses, tracker_frames
 from softhand_sim.scenarios.tracker_bags import SCENARIOS, sample
+from softhand_sim.paths import BAG_PARAMS
 from softhand_sim.ros.bagio import TYPESTORE, serialize, write_bag
 from softhand_sim.topics import LEGACY_TRACKER, tracker_topic
 
 TOPIC = LEGACY_TRACKER
 MSGTYPE = "geometry_msgs/msg/PoseArray"
-PARAMS_FILE = "params.yaml"  # beside a bag: the node parameters its scene needs (softhand demo reads it)
 MIRRORED = {"grasp_short_left": "grasp_short"}  # left-hand bag -> the right-hand sample it mirrors
 
 
@@ -84,7 +84,7 @@ def write_params(path: Path, name: str):
     """params.yaml beside bag `name` at path: the node parameters its scene needs (if any)."""
     params = {node: {"ros__parameters": values} for node, values in TWO_HAND_BAGS.get(name, {}).items()}
     if params:
-        (path / PARAMS_FILE).write_text(f"# parameters the scene of bag {name} needs (tools/make_bags.py)\n"
+        (path / BAG_PARAMS).write_text(f"# parameters the scene of bag {name} needs (tools/make_bags.py)\n"
                                         + yaml.safe_dump(params, sort_keys=False))
 
 

@@ -43,6 +43,24 @@ def bags_dir() -> Path:
     return Path(os.environ.get("SOFTHAND_BAGS_DIR", REPO_ROOT / "bags"))
 
 
+#: beside a bag: the node parameters its scene needs (tools/make_bags.py writes it, softhand demo
+#: and softhand offline read it)
+BAG_PARAMS = "params.yaml"
+
+
+def bag_path(bag) -> Path:
+    """A bag's directory: `bag` as a path when it exists, else the sample bag of that name in
+    bags_dir() (which may not exist either: the caller's reader says so)."""
+    path = Path(bag)
+    return path if path.exists() else bags_dir() / str(bag)
+
+
+def bag_params_file(bag):
+    """The bag's params.yaml (BAG_PARAMS) when it has one, else None."""
+    path = bag_path(bag) / BAG_PARAMS
+    return path if path.is_file() else None
+
+
 def cache_dir() -> Path:
     """Cache for built hand models and SDFs ($SOFTHAND_CACHE, else ~/.cache/softhand)."""
     d = Path(os.environ.get("SOFTHAND_CACHE", Path.home() / ".cache" / "softhand"))

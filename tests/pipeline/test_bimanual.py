@@ -117,14 +117,11 @@ def test_two_hand_bag_through_both_tracking_loops_offline(tmp_path):
     1.5 mm tracker noise (tools/make_bags.py's frames, noise off) holds it within 1 mm (0.2 mm
     measured; 3.3 mm at 0.5 mm of noise): the slip comes with the tracker noise, not with the
     nodes' timing."""
-    import importlib.util
-    from pathlib import Path
+    from tests.support.tools import load_tool
 
     lift, slip = _hold_slip("two_hand_lift")
     assert lift > 0.07 and slip < 0.02, (lift, slip)
-    spec = importlib.util.spec_from_file_location("make_bags", Path(__file__).resolve().parents[2] / "tools" / "make_bags.py")
-    make_bags = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(make_bags)
+    make_bags = load_tool("make_bags")
     make_bags.tracker_frames = lambda name: bimanual.tracker_frames(name, noise=False)
     lift_clean, slip_clean = _hold_slip(make_bags.make_two_hand_bag("two_hand_lift", tmp_path))
     assert lift_clean > 0.07 and slip_clean < 0.001 < slip, (lift_clean, slip_clean, slip)

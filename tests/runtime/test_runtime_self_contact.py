@@ -20,12 +20,6 @@ DT = 1.0 / 60.0
 THUMB_DISTAL, INDEX_DISTAL = 3, 6
 
 
-def pinch_run(self_contact: bool):
-    """Open hand above the table, closing into a pinch whose tracked tips are 2 mm apart (the pads,
-    ~2 x 8 mm thick, overlap); returns the runtime and the last step's output."""
-    return runtime_tip_pinch(self_contact, tip_gap=0.002)
-
-
 def tip_gap(rt, out):
     """Distance [m] between the thumb's and the index's tips (distal bone origin + its length along +x)."""
     from softhand_sim.handmodel.fidelity import simulated_points
@@ -35,7 +29,9 @@ def tip_gap(rt, out):
 
 @pytest.fixture(scope="module")
 def runs():
-    return pinch_run(False), pinch_run(True)
+    # open hand above the table, closing into a pinch whose tracked tips are 2 mm apart (the pads,
+    # ~2 x 8 mm thick, overlap): (runtime, last step's output) without and with self contact
+    return runtime_tip_pinch(False, tip_gap=0.002), runtime_tip_pinch(True, tip_gap=0.002)
 
 
 def test_pinched_pads_touch_each_other(runs):
@@ -82,13 +78,9 @@ def test_self_pinch_picture_shows_the_pads_flatten(runs, tmp_path):
     """tools/self_pinch_picture.py (the README's picture) on this module's two pinches: cut through
     both pads, the outlines overlap over 2 mm without self contact and under 1 mm with it (measured
     2.7 and 0.85 mm), and the picture is written."""
-    import importlib.util
-    from pathlib import Path
+    from tests.support.tools import load_tool
 
-    path = Path(__file__).resolve().parents[2] / "tools" / "self_pinch_picture.py"
-    spec = importlib.util.spec_from_file_location("self_pinch_picture", path)
-    tool = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(tool)
+    tool = load_tool("self_pinch_picture")
     (rt_off, off), (rt, on) = runs
     f = tool.draw({False: (rt_off, off), True: (rt, on)}, tmp_path / "pinch.png", tip_gap=0.002)
     assert f["overlap_off_mm"] > 2.0 and f["overlap_on_mm"] < 1.0, f

@@ -28,13 +28,12 @@ import time
 from datetime import datetime
 from pathlib import Path
 
-from softhand_sim.paths import REPO_ROOT, bags_dir
+from softhand_sim.paths import REPO_ROOT, bag_params_file, bag_path, bags_dir
 from softhand_sim.ros.env import apply_isolated_env, isolated_env
 from softhand_sim.ros.probe import wait_for_topics
 from softhand_sim.topics import LEGACY_TRACKER, SIDES, hand_topic, side_of, tracker_topic
 
 DEFAULT_BAG = "grasp_lift"
-BAG_PARAMS = "params.yaml"  # beside a bag: node parameters its scene needs (tools/make_bags.py)
 # (package, executable) of every process, in start order; the launch file starts the same set
 # (softhand_sim/launch/softhand.launch.py), tracking_node once per hand. Console scripts:
 # softhand-<name without _node>.
@@ -112,9 +111,7 @@ def console_script(name):
 
 
 def resolve_bag(bag):
-    path = Path(bag)
-    if not path.exists() and (bags_dir() / bag).exists():
-        path = bags_dir() / bag
+    path = bag_path(bag)
     if not path.exists():
         known = sorted(p.name for p in bags_dir().iterdir() if p.is_dir()) if bags_dir().is_dir() else []
         raise SystemExit(f"error: bag {bag!r} not found (sample bags in {bags_dir()}: {', '.join(known)})")
@@ -193,7 +190,7 @@ def run_demo(bag, out_dir, rate=1.0, params_file=None, preview=True, startup_tim
     params_file = params_file_for_hands(params_file, sides, out_dir)
     # a bag may carry the node parameters its scene needs (tools/make_bags.py: params.yaml beside
     # it); the user's file comes after it, so it wins
-    bag_params = bag / BAG_PARAMS if (bag / BAG_PARAMS).is_file() else None
+    bag_params = bag_params_file(bag)
     ros = ["--ros-args"] + [arg for f in (bag_params, params_file) if f for arg in ("--params-file", str(f))]
     if bag_params:
         say(f"  the bag's parameters: {bag_params}")

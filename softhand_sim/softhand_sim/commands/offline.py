@@ -40,7 +40,7 @@ import numpy as np
 
 from softhand_sim.topics import SKIN_OBJECT
 from softhand_sim.params import load_params, safe_load
-from softhand_sim.paths import bags_dir
+from softhand_sim.paths import bag_params_file, bag_path
 from softhand_sim.physics.hands import HAND_CODE
 from softhand_sim.physics.rotations import quat_to_matrix
 from softhand_sim.scene import load_scene
@@ -50,40 +50,31 @@ from softhand_tracking.loop import LoopConfig, TrackingLoop
 from softhand_world.world import World, WorldConfig
 
 MSGTYPE = "geometry_msgs/msg/PoseArray"
-BAG_PARAMS = "params.yaml"  # beside a bag: the node parameters its scene needs (as commands/demo.py reads it)
 _FRAME, _LOOP, _WORLD, _SIM_OUT, _SIM = range(5)  # tie-break order of simultaneous events
 
 
-def read_frames(bag=None, synth=None, side="right", t0_ns=None):
+def read_frames(bag=None, synth=None, side="right"):
     """(times [s] from the first frame, joints (n, 26, 7)) of hand `side` in a bag (name in bags/ or
     directory: its /tracker/{side}/hand_joints, or an old bag's /tracker/hand_joints) or, with
-    synth=<scenario name>, of tracker_bags.sample directly (no file). t0_ns: the time origin
-    [ns] instead of this hand's first frame (both hands of a bag on one timeline)."""
+    synth=<scenario name>, of tracker_bags.sample directly (no file)."""
     if synth is not None:
         from softhand_sim.scenarios.tracker_bags import sample
         stamps, joints, _ = sample(synth)
     else:
-        from softhand_sim.ros.bagio import deserialize, read_tracker
-        path = Path(bag)
-        if not path.exists():
-            path = bags_dir() / str(bag)
-        data = read_tracker(path, side)
-        joints = []
-        for raw in data.payloads:
-            msg = deserialize(raw, MSGTYPE)
-            joints.append([(p.position.x, p.position.y, p.position.z, p.orientation.x, p.orientation.y,
-                            p.orientation.z, p.orientation.w) for p in msg.poses])
-        stamps, joints = np.asarray(data.stamps_ns, dtype=np.int64), np.asarray(joints, dtype=float)
-    return (stamps - (stamps[0] if t0_ns is None else int(t0_ns))) * 1e-9, joints
+        stamps, joints = tracker_frames_ns(bag, side)
+    return (stamps - stamps[0]) * 1e-9, joints
 
 
-def first_stamp_ns(bag, side):
-    """The header stamp [ns] of hand `side`'s first tracker frame in a bag."""
-    from softhand_sim.ros.bagio import read_tracker
-    path = Path(bag)
-    if not path.exists():
-        path = bags_dir() / str(bag)
-    return int(read_tracker(path, side).stamps_ns[0])
+def tracker_frames_ns(bag, side):
+    """(header stamps [ns] (n,) int64, joints (n, 26, 7)) of hand `side`'s tracker frames in a bag."""
+    from softhand_sim.ros.bagio import deserialize, read_tracker
+    data = read_tracker(bag_path(bag), side)
+    joints = []
+    for raw in data.payloads:
+        msg = deserialize(raw, MSGTYPE)
+        joints.append([(p.position.x, p.position.y, p.position.z, p.orientation.x, p.orientation.y,
+                        p.orientation.z, p.orientation.w) for p in msg.poses])
+    return np.asarray(data.stamps_ns, dtype=np.int64), np.asarray(joints, dtype=float)
 
 
 @dataclass
@@ -151,8 +142,7 @@ def run_pipeline(bag=None, synth=None, until=None, sim_latency=None, sim_overrid
     `track_object`. Without a params_file, a bag's own params.yaml (the node parameters its scene
     needs, as `softhand demo` passes them) is read when it has one."""
     if params_file is None and bag is not None:
-        path = Path(bag) if Path(bag).exists() else bags_dir() / str(bag)
-        params_file = path / BAG_PARAMS if (path / BAG_PARAMS).is_file() else None
+        params_file = bag_params_file(bag)
     sp = load_params("sim_node", params_file, sim_overrides)
     wp = load_params("world_node", params_file, world_overrides)
     tp = load_params("tracking_node", params_file, tracking_overrides)
@@ -163,8 +153,9 @@ def run_pipeline(bag=None, synth=None, until=None, sim_latency=None, sim_overrid
     else:
         if synth is not None:
             raise ValueError("two hands run from a bag only (synth is one hand)")
-        t0_ns = min(first_stamp_ns(bag, side) for side in hands)
-        frames = {side: read_frames(bag, side=side, t0_ns=t0_ns) for side in hands}
+        raw = {side: tracker_frames_ns(bag, side) for side in hands}
+        t0_ns = min(stamps[0] for stamps, _ in raw.values())  # the bag's one timeline
+        frames = {side: ((stamps - t0_ns) * 1e-9, joints) for side, (stamps, joints) in raw.items()}
     scene = load_scene(sp["scene_file"] or None)
     runtime = SimRuntime(sp, scene=scene, asset=asset)
     world = World(load_scene(wp["scene_file"] or None), WorldConfig(
@@ -240,18 +231,14 @@ def run_pipeline(bag=None, synth=None, until=None, sim_latency=None, sim_overrid
                 continue
             # the feedback gate counts object contacts only, each hand its own (tracking_node)
             objects = out.contacts["objects"] != SKIN_OBJECT
-            if len(hands) == 1:
-                bones_out = {hands[0]: out.bone_poses.copy()}
-                counts = {hands[0]: int(np.count_nonzero(objects))}
-            else:
-                bones_out = {side: out.hands[side].bone_poses.copy() for side in hands}
-                counts = {side: int(np.count_nonzero(objects & (out.contacts["hand"] == HAND_CODE[side])))
-                          for side in hands}
+            bones_out = {side: out.hands[side].bone_poses.copy() for side in hands}
+            counts = {side: int(np.count_nonzero(objects & (out.contacts["hand"] == HAND_CODE[side])))
+                      for side in hands}
             push(t + latency, _SIM_OUT, (out.t, bones_out, list(out.object_names), out.object_poses.copy(),
                                          out.object_twists.copy(), out.object_accels.copy(), counts))
             c = out.contacts
             on_ball = c["objects"] == ball_contact
-            palm = out.hands[hands[0]].bone_poses[0] if len(hands) > 1 else out.bone_poses[0]
+            palm = out.bone_poses[0]  # the first hand's
             be = world_state.pose[wball, :3]
             rec["t"].append(out.t)
             rec["be"].append(be.copy())

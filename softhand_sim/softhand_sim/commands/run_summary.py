@@ -114,12 +114,12 @@ FIDELITY_KEYS = ("palm_mm", "palm_deg", "knuckle_mm", "fingertip_mm", "phalanx_d
                  "pinch_gap_error_mm")
 
 
-def _fidelity(bag_dir, side):
+def _fidelity(bag_dir, side, bone_length):
     """(lag {layer: {phalanx, palm}} [ms], errors {FIDELITY_KEYS: {median, p95, max}}) of one hand
-    (softhand fidelity on the recording); ({}, {}) where they cannot be told."""
-    from softhand_sim.commands.fidelity import bone_lengths_of, recorded_fidelity
+    (softhand fidelity on the recording, scored with `bone_length`, fidelity.bone_lengths_of);
+    ({}, {}) where they cannot be told."""
+    from softhand_sim.commands.fidelity import recorded_fidelity
     from softhand_sim.ros.bagio import BagError
-    bone_length = bone_lengths_of(bag_dir)[0]
     try:
         f = recorded_fidelity(bag_dir, bone_length, side)
     except (ValueError, BagError):
@@ -298,6 +298,7 @@ def summarize_run(bag_dir, bag_name="", exit_codes=None, input_bag=None, play_lo
     if in_bag is not None:  # the bag played `repeat` times (softhand demo --repeat)
         in_bag = {side: n * repeat for side, n in in_bag.items()}
     hands, latencies, startups = {}, [], []
+    bone_length = None  # the hand the run simulated (read from its /diagnostics once, when needed)
     for side in SIDES:
         tracker_t, bones_t = times.get(tracker_topic(side), []), times.get(hand_topic(side, "bones"), [])
         if not tracker_t and not bones_t and side not in tracking_counts and not (in_bag or {}).get(side):
@@ -317,7 +318,10 @@ def summarize_run(bag_dir, bag_name="", exit_codes=None, input_bag=None, play_lo
             "max_skin_contacts": max_skin_hand.get(side, 0),
         }
         if tracker_t and bones_t:
-            hands[side]["lag_ms"], hands[side]["fidelity"] = _fidelity(bag_dir, side)
+            if bone_length is None:
+                from softhand_sim.commands.fidelity import bone_lengths_of
+                bone_length = bone_lengths_of(bag_dir)[0]
+            hands[side]["lag_ms"], hands[side]["fidelity"] = _fidelity(bag_dir, side, bone_length)
     latency = np.concatenate(latencies) if latencies else np.empty(0)
     startup_s = float(np.nanmax(startups)) if startups and not np.all(np.isnan(startups)) else float("nan")
     size = sum(f.stat().st_size for f in bag_dir.rglob("*") if f.is_file())
