@@ -48,6 +48,7 @@ def build_parser():
 def main(argv=None):
     args = build_parser().parse_args(argv)
     from softhand_sim.topics import TOPIC_TYPES
+    from softhand_sim.ros.env import PROFILE_VARIABLES
     from softhand_sim.ros.foxglove import default_topics, serve  # rclpy from here on
 
     topics = default_topics()
@@ -56,13 +57,16 @@ def main(argv=None):
         if unknown:
             raise SystemExit(f"error: unknown topic(s) {unknown}; softhand topics: {', '.join(TOPIC_TYPES)}")
         topics = {t: TOPIC_TYPES[t] for t in args.topics}
-    # loopback-only discovery, like every softhand process; the domain is the one to watch
+    # loopback-only discovery, like every softhand process (ros/env.py: no LAN profile either); the
+    # domain is the one to watch
     os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
-    os.environ.pop("ROS_LOCALHOST_ONLY", None)
+    for name in ("ROS_LOCALHOST_ONLY", *PROFILE_VARIABLES):
+        os.environ.pop(name, None)
     if args.domain_id is not None:
         os.environ["ROS_DOMAIN_ID"] = str(args.domain_id)
     stop = threading.Event()
-    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    for sig in (signal.SIGINT, signal.SIGTERM):  # Ctrl-C and SIGTERM end the serve loop cleanly
+        signal.signal(sig, lambda *_: stop.set())
     counts = serve(topics, host=args.host, port=args.port, stop=stop)
     print("softhand view: forwarded " + ", ".join(f"{t} {n}" for t, n in counts.items() if n), flush=True)
     return 0

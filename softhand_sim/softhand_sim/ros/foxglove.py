@@ -83,10 +83,14 @@ def serve(topics, host=DEFAULT_HOST, port=DEFAULT_PORT, ready=None, stop=None, s
     import foxglove
     import rclpy
     from rclpy.executors import ExternalShutdownException
+    from rclpy.signals import SignalHandlerOptions
 
     context = foxglove.Context()
     server = foxglove.start_server(name="softhand", host=host, port=port, context=context)
-    rclpy.init(args=[])
+    # rclpy's own SIGINT handler shuts the context down under a running spin_once, which then
+    # fails ("the given context is not valid") and the viewer exited 1 on Ctrl-C now and then; as
+    # run_node does for the nodes, the caller's signal handling sets `stop` instead
+    rclpy.init(args=[], signal_handler_options=SignalHandlerOptions.NO)
     node = rclpy.create_node("softhand_view")
     forwarder = TopicForwarder(node, topics, context=context)
     if forwarder.missing:  # e.g. /tf without tf2_msgs (no C compiler at set-up): the rest is served
