@@ -355,6 +355,13 @@ class PlayNode(Node):
                 unmatched.update(subs)
         return [n for n in want if n not in seen or n in unmatched]
 
+    def _subscribers_seen(self) -> str:
+        """Who the ROS graph lists as subscribed to each replayed topic, and the publisher's match
+        count: what a missing node's error needs (a node name the graph has not resolved yet shows
+        as rmw's placeholder for an unknown node)."""
+        return "; ".join(f"{topic}: [{', '.join(i.node_name for i in self.get_subscriptions_info_by_topic(topic))}]"
+                         f" {pub.get_subscription_count()} matched" for topic, pub in self._pubs_by_topic().items())
+
     def wait_for_subscribers(self) -> bool:
         """Block until `wait_subscribers` subscriptions match and every node of `wait_for_nodes` is
         subscribed and matched (a plain TimeoutError naming what is missing after `wait_timeout`)."""
@@ -380,7 +387,8 @@ class PlayNode(Node):
                     missing = self.missing_nodes()
                     raise TimeoutError(f"{matched()} of {want} subscribers on {where} after "
                                        f"{self.cfg['wait_timeout']} s"
-                                       + (f"; not subscribed and matched: {', '.join(missing)}" if missing else ""))
+                                       + (f"; not subscribed and matched: {', '.join(missing)}"
+                                          f" (the graph shows: {self._subscribers_seen()})" if missing else ""))
                 if not self._sleep_until(time.monotonic() + 0.05):
                     return False
             # the writer has matched the readers; give the readers' side of discovery a moment too,

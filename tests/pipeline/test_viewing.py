@@ -49,8 +49,8 @@ def read_topic(bag_dir, topic):
         return [store.deserialize_cdr(raw, c.msgtype) for c, _, raw in reader.messages(connections=conns)]
 
 
-def test_demo_recording_shows_in_the_foxglove_layout(grasp_short_run, repo_root):
-    check_run_for_viewing(grasp_short_run[0], repo_root)
+def test_demo_recording_shows_in_the_foxglove_layout(demo_run, repo_root):
+    check_run_for_viewing(demo_run[0], repo_root)
 
 
 def check_run_for_viewing(out, repo_root):

@@ -12,9 +12,11 @@ import os
 import random
 import tempfile
 
-# Fast DDS ports are 7400 + 250 * domain (+ offsets), so ids up to 232 are valid on Linux; we keep
-# off the low ids that people's real robots use (0 is ROS's default).
-_DOMAIN_LOW, _DOMAIN_HIGH = 20, 230
+# Fast DDS ports are 7400 + 250 * domain (+ offsets). Above domain 101 they fall in Linux's
+# ephemeral port range (32768..60999), where a socket the kernel gave any process a port from can
+# hold a participant's port: ROS's "About Domain ID" page names 0..101 the safe ids. We keep off the
+# low ids that people's real robots use (0 is ROS's default).
+_DOMAIN_LOW, _DOMAIN_HIGH = 20, 101
 _LOCK_DIR = os.path.join(tempfile.gettempdir(), "softhand-ros-domains")
 _held = {}  # domain id -> open lock file (the flock lasts while this process keeps it open)
 # Fast DDS 2.x reads the first, 3.x the second
