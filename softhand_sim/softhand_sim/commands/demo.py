@@ -20,6 +20,7 @@ tracking_node, a second one tracking_node_left.
 from __future__ import annotations
 
 import argparse
+import copy
 import json
 import signal
 import subprocess
@@ -76,10 +77,12 @@ def params_file_for_hands(params_file, sides, out_dir):
     for side in sides[1:]:
         name = tracking_node_name(sides, side)
         if "tracking_node" in data and name not in data:
-            data[name] = data["tracking_node"]
-    copy = Path(out_dir) / "params.yaml"
-    copy.write_text(yaml.safe_dump(data, sort_keys=False))
-    return copy
+            # a copy, not the same dict: PyYAML writes a shared one as an anchor and an alias,
+            # which rcl's params-file parser refuses ("Will not support aliasing")
+            data[name] = copy.deepcopy(data["tracking_node"])
+    out = Path(out_dir) / "params.yaml"
+    out.write_text(yaml.safe_dump(data, sort_keys=False))
+    return out
 
 
 def bag_sides(bag, legacy_side="right"):
