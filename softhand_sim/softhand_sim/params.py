@@ -180,6 +180,12 @@ TRACKING = {
               "stamped with that time (sim_node steps to t + 1/sim_rate with the latest ones)", 0.0, 0.05),
     "ref_smoothing": P(float, 0.015, "s", "time constant of the low-pass filter on the tracked velocity "
                        "(damping reference and extrapolation); 0: none", 0.0, 1.0),
+    "joint_filter": P(str, "none", "-", "filter on the tracked joint positions before the loop: none, or one_euro "
+                      "(a low-pass, relative to the wrist, whose cutoff rises with each joint's speed: "
+                      "removes the tracker's jitter from a still hand; costs the fingers 6-7 ms of lag in motion)",
+                      choices=("none", "one_euro")),
+    "joint_filter_min_cutoff": P(float, 1.0, "Hz", "one_euro: cutoff of a still joint", positive=True),
+    "joint_filter_beta": P(float, 30.0, "s/m", "one_euro: cutoff [Hz] added per m/s of joint speed", 0.0),
     "tracker_timeout": P(float, 0.1, "s", "hold the last target when no valid frame arrived for this long", positive=True),
     "sim_timeout": P(float, 0.5, "s", "forget the full-simulation copy when /hand/{hand}/bones is older than this",
                      positive=True),

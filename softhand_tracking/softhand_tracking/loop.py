@@ -364,7 +364,9 @@ class TrackingLoop:
             self.adapter.reject(RejectedFrame("stamp_order", f"capture time {capture_t:.6f} s not after "
                                               f"the last accepted frame's {self._prev_capture:.6f} s"))
             return False
-        poses = self.adapter.convert(joints)
+        if self.holding and getattr(self.adapter, "joint_filter", None) is not None:
+            self.adapter.joint_filter.reset()  # after a dropout: no blend with the hand before it
+        poses = self.adapter.convert(joints, capture_t)
         if poses is None:
             return False
         if not self.initialized:

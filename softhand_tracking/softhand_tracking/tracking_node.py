@@ -39,7 +39,7 @@ from softhand_sim.ros.msgs import diagnostic_name, pose_array_cdr, pose_array_fr
 from softhand_sim.ros.params import declare_node_params
 from softhand_sim.timing import FixedRateScheduler, StepStats
 from softhand_sim.topics import hand_topic, tracker_topic
-from softhand_tracking.adapter import AdapterConfig, TrackerAdapter
+from softhand_tracking.adapter import tracker_adapter
 from softhand_tracking.loop import (LoopConfig, TrackingLoop, bone_inertia_for, default_bone_inertia,
                                     extrapolate_poses, warm_up)
 
@@ -109,9 +109,7 @@ class TrackingNode(Node):
         if len(p["tracker_to_world"]) != 7:
             raise ValueError(f"{name}: parameter 'tracker_to_world' must be 7 numbers "
                              f"[px py pz qx qy qz qw], got {p['tracker_to_world']!r}")
-        adapter = TrackerAdapter(AdapterConfig(
-            hand=p["hand"], world_from_tracker=np.asarray(p["tracker_to_world"], dtype=float),
-            bone_length_min=p["min_bone_length"], bone_length_max=p["max_bone_length"]))
+        adapter = tracker_adapter(p, p["hand"])
         loop_config = LoopConfig(rate=p["rate"], tracked_kx=p["tracked_kx"], tracked_ktheta=p["tracked_ktheta"],
                                  sim_kx=p["sim_kx"], sim_ktheta=p["sim_ktheta"], damping_ratio=p["damping_ratio"],
                                  feedback=p["feedback"], extrapolate=p["extrapolate"],

@@ -45,7 +45,7 @@ from softhand_sim.physics.hands import HAND_CODE
 from softhand_sim.physics.rotations import quat_to_matrix
 from softhand_sim.scene import load_scene
 from softhand_sim.runtime import SimRuntime
-from softhand_tracking.adapter import AdapterConfig, TrackerAdapter
+from softhand_tracking.adapter import tracker_adapter
 from softhand_tracking.loop import LoopConfig, TrackingLoop
 from softhand_world.world import World, WorldConfig
 
@@ -165,9 +165,7 @@ def run_pipeline(bag=None, synth=None, until=None, sim_latency=None, sim_overrid
         start_time=0.0)
     loops = {}
     for side in hands:  # one tracking node per hand
-        adapter = TrackerAdapter(AdapterConfig(hand=side, world_from_tracker=np.asarray(tp["tracker_to_world"], float),
-                                               bone_length_min=tp["min_bone_length"],
-                                               bone_length_max=tp["max_bone_length"]))
+        adapter = tracker_adapter(tp, side)
         loops[side] = TrackingLoop(LoopConfig(rate=tp["rate"], tracked_kx=tp["tracked_kx"],
                                               tracked_ktheta=tp["tracked_ktheta"], sim_kx=tp["sim_kx"],
                                               sim_ktheta=tp["sim_ktheta"], damping_ratio=tp["damping_ratio"],
