@@ -21,7 +21,7 @@ setup(
     data_files=[
         ("share/ament_index/resource_index/packages", ["resource/" + package_name]),
         ("share/" + package_name, ["package.xml"]),
-        ("share/" + package_name + "/config", repo_files("config/*.yaml")),
+        ("share/" + package_name + "/config", repo_files("config/*.yaml") + repo_files("config/*.xml")),
         ("share/" + package_name + "/launch", sorted(glob.glob("launch/*.launch.py"))),
     ],
     install_requires=[],

@@ -39,6 +39,7 @@ def test_packages_and_executables(colcon_install):
         assert (colcon_install / pkg / "share" / "ament_index" / "resource_index" / "packages" / pkg).is_file()
     config = colcon_install / "softhand_sim" / "share" / "softhand_sim" / "config"
     assert (config / "softhand.yaml").is_file() and (config / "scene.yaml").is_file()
+    assert (config / "fastdds_local.xml").is_file() and (config / "fastdds_lan.xml").is_file()
 
 
 @pytest.mark.parametrize("pkg,node", sorted((p, n) for p, ns in EXPECTED.items() for n in ns))

@@ -4,8 +4,10 @@ Without ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST, Fast DDS multicasts discovery o
 interface; with it, no packet leaves loopback. A ROS_DOMAIN_ID of its own keeps parallel runs
 (two test sessions, a demo beside the tests) from hearing each other. ROS_LOCALHOST_ONLY is
 deprecated in Jazzy, so it is removed rather than set. A Fast DDS profile file named by the user's
-environment (config/fastdds_lan.xml for a LAN) is removed too: under LOCALHOST, rmw adds its
-loopback transport to the profile's transports, so the profile's UDP on every interface would stay.
+environment (config/fastdds_lan.xml for a LAN) is replaced by config/fastdds_local.xml: under
+LOCALHOST, rmw adds its loopback transport to a profile's transports, so a profile's UDP on every
+interface would stay; the local profile names no transport (it only shortens the writers'
+heartbeat, see the file).
 """
 import fcntl
 import os
@@ -21,6 +23,7 @@ _LOCK_DIR = os.path.join(tempfile.gettempdir(), "softhand-ros-domains")
 _held = {}  # domain id -> open lock file (the flock lasts while this process keeps it open)
 # Fast DDS 2.x reads the first, 3.x the second
 PROFILE_VARIABLES = ("FASTRTPS_DEFAULT_PROFILES_FILE", "FASTDDS_DEFAULT_PROFILES_FILE")
+LOCAL_PROFILE = "fastdds_local.xml"
 
 
 def pick_domain_id(seed=None) -> int:
@@ -63,8 +66,28 @@ def isolated_env(domain_id=None, base=None) -> dict:
     env.pop("ROS_LOCALHOST_ONLY", None)
     for name in PROFILE_VARIABLES:
         env.pop(name, None)
+    local = local_profile()
+    if local is not None:
+        env[PROFILE_VARIABLES[0]] = str(local)
     env.setdefault("PYTHONUNBUFFERED", "1")
     return env
+
+
+def local_profile():
+    """config/fastdds_local.xml (the path found by softhand_sim.paths), or None without one."""
+    from softhand_sim.paths import default_config_file
+
+    path = default_config_file(LOCAL_PROFILE)
+    return path if path.is_file() else None
+
+
+def names_transports(profile) -> bool:
+    """Whether a Fast DDS profile file defines transports (unreadable: assume it does)."""
+    try:
+        text = open(profile, encoding="utf-8", errors="replace").read()
+    except OSError:
+        return True
+    return "<userTransports>" in text or "<transport_descriptor>" in text
 
 
 def apply_isolated_env(domain_id=None) -> dict:
@@ -74,6 +97,8 @@ def apply_isolated_env(domain_id=None) -> dict:
         os.environ[key] = env[key]
     for name in ("ROS_LOCALHOST_ONLY", *PROFILE_VARIABLES):
         os.environ.pop(name, None)
+        if name in env:
+            os.environ[name] = env[name]
     return env
 
 
@@ -88,7 +113,7 @@ def discovery_note(environ=None):
     domain = env.get("ROS_DOMAIN_ID", "") or "0"
     profile = next((env[name] for name in PROFILE_VARIABLES if env.get(name)), None)
     if rng == "LOCALHOST":
-        if profile:
+        if profile and names_transports(profile):
             return ("warn", f"ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST with the Fast DDS profile {profile}: "
                             "rmw adds loopback to the profile's transports, so DDS still uses every interface "
                             "the profile names; unset the profile variable for a loopback-only run")
