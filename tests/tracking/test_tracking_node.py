@@ -131,7 +131,10 @@ def _check(bones, tracker, diags):
     print(f"tracker delivery lateness p50 {1e3 * np.median(late):.1f} ms, max {1e3 * late.max():.1f} ms; "
           f"bones publication lateness p50 {1e3 * np.median(node_late):.1f} ms, max {1e3 * node_late.max():.1f} ms; "
           f"{late_at.size} late events, {near_late.sum()} of {len(recv)} steps left out")
-    assert near_late.mean() < 0.3
+    # enough steps left to judge: at least 40 % of the run (~3 s of it, the fast motion included).
+    # Measured on an idle machine: 0-41 % left out (62 late events of ~35 ms, mostly this listening
+    # process's own); once 91 %, which only says the machine could not be judged that time
+    assert near_late.mean() < 0.6, f"{near_late.mean():.0%} of the steps near a late event: the machine was too busy"
     tracking = valid & ((recv < gap_start) | (recv > gap_end + 0.5)) & (recv <= t_last_tracker) & ~near_late
     print(f"palm error while tracking: p50 {1e3 * np.median(err[tracking]):.1f} mm, "
           f"p99 {1e3 * np.percentile(err[tracking], 99):.1f} mm, max {1e3 * err[tracking].max():.1f} mm")
