@@ -55,6 +55,9 @@ class OneEuroJointFilter:
         self.min_cutoff, self.beta, self.d_cutoff = float(min_cutoff), float(beta), float(d_cutoff)
         self.reset()
 
+    def __str__(self) -> str:  # as tracking_node's /diagnostics names it
+        return f"one_euro (min cutoff {self.min_cutoff:g} Hz, beta {self.beta:g} s/m)"
+
     def reset(self) -> None:
         self._t = None
         self._x = None

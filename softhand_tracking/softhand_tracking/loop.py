@@ -364,7 +364,7 @@ class TrackingLoop:
             self.adapter.reject(RejectedFrame("stamp_order", f"capture time {capture_t:.6f} s not after "
                                               f"the last accepted frame's {self._prev_capture:.6f} s"))
             return False
-        if self.holding and getattr(self.adapter, "joint_filter", None) is not None:
+        if self.holding and self.adapter.joint_filter is not None:
             self.adapter.joint_filter.reset()  # after a dropout: no blend with the hand before it
         poses = self.adapter.convert(joints, capture_t)
         if poses is None:

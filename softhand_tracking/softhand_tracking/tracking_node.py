@@ -294,6 +294,7 @@ class TrackingNode(Node):
             "sim_copy": self.loop.bones.sim_active, "sim_copy_drops": self.loop.sim_drops,
             "bad_sim_messages": self.bad_sim_messages, "bad_contact_messages": self.bad_contact_messages,
             "feedback_gain": self.loop.bones.sim_gain,
+            "joint_filter": str(adapter.joint_filter) if adapter.joint_filter is not None else "none",
             **self.measures_diagnostics(),
         }
         if not self.loop.initialized:

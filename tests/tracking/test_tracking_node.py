@@ -195,7 +195,9 @@ def test_one_tracking_node_per_hand(ros_env, tmp_path):
     `tracking_node_left -p hand:=left`, fed by play_node with a two-hand bag (--wait-for-nodes names
     both): each receives and accepts exactly its side's frames (/diagnostics of its own name, value
     hand), publishes /hand/{side}/intermediate_bones only, and its bones follow its own hand (the
-    left hand is 30 cm from the right one); nothing on the old un-sided topic."""
+    left hand is 30 cm from the right one); nothing on the old un-sided topic. The left one runs
+    with `joint_filter:=one_euro` (the filter in a node: its /diagnostics name it, and its hand
+    still follows)."""
     n = 150
     frames = two_hand_bag(tmp_path / "bag", n)
     tracked_palm = {side: np.array([TrackerAdapter(AdapterConfig(hand=side)).convert(j)[0, :3] for j in f])
@@ -207,7 +209,7 @@ def test_one_tracking_node_per_hand(ros_env, tmp_path):
         diags = g.listen("/diagnostics", DiagnosticArray)
         nodes = {"right": g.start(["softhand-tracking"]),
                  "left": g.start(["softhand-tracking", "--ros-args", "-r", "__node:=tracking_node_left",
-                                  "-p", "hand:=left"])}
+                                  "-p", "hand:=left", "-p", "joint_filter:=one_euro"])}
         for side, name in names.items():
             g.wait_until(lambda: _tracking_diag(diags.msgs, name), 60, f"/diagnostics of {name}", nodes[side])
         play = g.start(["softhand-play", str(tmp_path / "bag"), "--wait-for-nodes", *names.values()])
@@ -230,6 +232,7 @@ def test_one_tracking_node_per_hand(ros_env, tmp_path):
         print(name, {k: last[k] for k in ("hand", "frames_received", "frames_accepted", "frames_rejected",
                                           "published")})
         assert last["hand"] == side
+        assert last["joint_filter"] == ("one_euro (min cutoff 1 Hz, beta 30 s/m)" if side == "left" else "none")
         assert int(last["frames_received"]) == int(last["frames_accepted"]) == n  # its side's frames, all of them
         assert int(last["frames_rejected"]) == 0
         palms = np.array([pose_array_to_numpy(m)[0, :3] for m in bones[side].msgs])
