@@ -224,6 +224,13 @@ def test_offered_qos_type_hash_and_distro_like_rosbag2(ros_env, tmp_path):
     assert rec.topics["/hand/right/skin_mesh"].offered_qos[0].durability.name == "TRANSIENT_LOCAL"
 
 
+def _recorded_count(diags) -> int:
+    """The last `messages` count record_node reported on /diagnostics (0 before its first)."""
+    counts = [int(kv.value) for m in list(diags.msgs) for st in m.status if st.name.startswith("record_node")
+              for kv in st.values if kv.key == "messages"]
+    return counts[-1] if counts else 0
+
+
 @pytest.mark.parametrize("flush_period", [0.3, 3600.0], ids=["periodic_flush", "no_flush"])
 def test_sigkill_leaves_a_recoverable_bag(ros_env, tmp_path, flush_period):
     """After SIGKILL the bag has no metadata.yaml (rosbags refuses it); recover_mcap gets back exactly the
@@ -234,13 +241,17 @@ def test_sigkill_leaves_a_recoverable_bag(ros_env, tmp_path, flush_period):
     cloud = rm.xyz_cloud_from_numpy(np.random.default_rng(0).normal(size=(4000, 3)), 0)  # 48 kB each
     with RosGraph(ros_env) as g:
         pub = g.publisher("/hand/right/skin_vertices", PointCloud2, DEEP)
+        diags = g.listen("/diagnostics", DiagnosticArray)
         proc = g.start(["softhand-record", "-o", str(out), "--topics", "/hand/right/skin_vertices",
-                        "--ros-args", "-p", f"flush_period:={flush_period}"])
+                        "--ros-args", "-p", f"flush_period:={flush_period}", "-p", "diagnostics_rate:=20.0"])
         g.wait_matched(pub, proc=proc)
         for i in range(n):
             cloud.header.stamp = rm.stamp_from_ns(i)
             pub.publish(cloud)
         assert pub.wait_for_all_acked(Duration(seconds=10))
+        # acknowledged means received by the recorder's reader, not yet written by its callback:
+        # wait for its own count of written messages (a fresh clone's run recovered 44 of 60)
+        g.wait_until(lambda: _recorded_count(diags) >= n, 20, f"record_node to write {n} messages", proc)
         time.sleep(1.0)  # longer than the short flush_period: the recorder has written its pending chunk
         assert proc.stop(signal.SIGKILL) == -signal.SIGKILL
     assert not (out / "metadata.yaml").exists()
