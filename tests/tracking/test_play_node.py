@@ -122,8 +122,12 @@ def test_waits_for_the_named_nodes(ros_env, tmp_path):
         time.sleep(1.0)  # the player is up and waiting before the subscriber exists
         joints = g.listen(TOPIC, PoseArray, best_effort)
         assert proc.wait(30) == 0, proc.output()
-        g.wait_until(lambda: len(joints) >= len(stamps), 5, f"all frames (got {len(joints)})")
-        assert [pose_array_to_numpy(m)[0, 0] for m in joints.msgs] == list(range(len(stamps)))
+        try:
+            g.wait_until(lambda: len(joints) >= len(stamps), 5, "all frames")
+        finally:
+            got = [int(pose_array_to_numpy(m)[0, 0]) for m in joints.msgs]
+            print("missing frames:", sorted(set(range(len(stamps))) - set(got)))
+        assert got == list(range(len(stamps)))
 
 
 def test_rate_parameter_and_sqlite_bag_via_ros_args(ros_env, tmp_path):
