@@ -106,6 +106,14 @@ class BoneInertia:
     source: str = "handmodel"
 
 
+def loop_config_from(p: dict) -> LoopConfig:
+    """The loop's settings from tracking_node's parameters `p` (softhand_sim.params.TRACKING): as
+    tracking_node and `softhand offline` configure it."""
+    return LoopConfig(rate=p["rate"], tracked_kx=p["tracked_kx"], tracked_ktheta=p["tracked_ktheta"],
+                      sim_kx=p["sim_kx"], sim_ktheta=p["sim_ktheta"], damping_ratio=p["damping_ratio"],
+                      feedback=p["feedback"], extrapolate=p["extrapolate"], ref_smoothing=p["ref_smoothing"])
+
+
 def bone_inertia_for(measures) -> BoneInertia:
     """Masses and inertias of the hand model's skeleton at `measures` (HandMeasures): the bones
     of a user's hand (parameter hand_measures)."""

@@ -40,8 +40,8 @@ from softhand_sim.ros.params import declare_node_params
 from softhand_sim.timing import FixedRateScheduler, StepStats
 from softhand_sim.topics import hand_topic, tracker_topic
 from softhand_tracking.adapter import tracker_adapter
-from softhand_tracking.loop import (LoopConfig, TrackingLoop, bone_inertia_for, default_bone_inertia,
-                                    extrapolate_poses, warm_up)
+from softhand_tracking.loop import (TrackingLoop, bone_inertia_for, default_bone_inertia, extrapolate_poses,
+                                    loop_config_from, warm_up)
 
 #: the default node name and the parameter schema's section; a second instance runs under another
 #: name (`-r __node:=tracking_node_left`), so logs and diagnostics use self.get_name()
@@ -110,10 +110,7 @@ class TrackingNode(Node):
             raise ValueError(f"{name}: parameter 'tracker_to_world' must be 7 numbers "
                              f"[px py pz qx qy qz qw], got {p['tracker_to_world']!r}")
         adapter = tracker_adapter(p, p["hand"])
-        loop_config = LoopConfig(rate=p["rate"], tracked_kx=p["tracked_kx"], tracked_ktheta=p["tracked_ktheta"],
-                                 sim_kx=p["sim_kx"], sim_ktheta=p["sim_ktheta"], damping_ratio=p["damping_ratio"],
-                                 feedback=p["feedback"], extrapolate=p["extrapolate"],
-                                 ref_smoothing=p["ref_smoothing"])
+        loop_config = loop_config_from(p)
         inertia, self.measures, self.measures_source = self.hand_inertia(p["hand_measures"], name)
         self.loop = TrackingLoop(loop_config, adapter, tracker_timeout=p["tracker_timeout"],
                                  sim_timeout=p["sim_timeout"], inertia=inertia)

@@ -15,7 +15,7 @@ from softhand_sim.params import load_params
 from softhand_sim.runtime import SimRuntime
 from softhand_sim.scenarios.tracker_bags import PALM_DOWN, digit_angles
 from softhand_sim.handmodel.kinematics import forward_kinematics
-from softhand_tracking.loop import LoopConfig, TrackingLoop, default_bone_inertia
+from softhand_tracking.loop import TrackingLoop, default_bone_inertia, loop_config_from
 
 LOOP_DT, SIM_DT, FRAME_DT = 1.0 / 250.0, 1.0 / 60.0, 0.01
 START = np.array([-0.05, 0.10, 1.00])      # [m] wrist, in the air above the table
@@ -40,10 +40,7 @@ def run():
     params = load_params("sim_node")
     tp = load_params("tracking_node")  # the loop as tracking_node configures it
     rt = SimRuntime(params)
-    loop = TrackingLoop(LoopConfig(rate=tp["rate"], tracked_kx=tp["tracked_kx"], tracked_ktheta=tp["tracked_ktheta"],
-                                   sim_kx=tp["sim_kx"], sim_ktheta=tp["sim_ktheta"],
-                                   damping_ratio=tp["damping_ratio"]),
-                        tracker_timeout=tp["tracker_timeout"], sim_timeout=tp["sim_timeout"])
+    loop = TrackingLoop(loop_config_from(tp), tracker_timeout=tp["tracker_timeout"], sim_timeout=tp["sim_timeout"])
     assert tp["rate"] == 250.0
     angles = digit_angles(np.full(5, 0.3))
     rows, next_frame, next_sim, frames = [], 0.0, 0.0, 0

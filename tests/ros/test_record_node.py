@@ -226,8 +226,8 @@ def test_offered_qos_type_hash_and_distro_like_rosbag2(ros_env, tmp_path):
 
 def _recorded_count(diags) -> int:
     """The last `messages` count record_node reported on /diagnostics (0 before its first)."""
-    counts = [int(kv.value) for m in list(diags.msgs) for st in m.status if st.name.startswith("record_node")
-              for kv in st.values if kv.key == "messages"]
+    counts = [int(rm.diagnostic_values(st)["messages"]) for m in list(diags.msgs) for st in m.status
+              if rm.status_node(st.name) == "record_node"]
     return counts[-1] if counts else 0
 
 

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from softhand_tracking.joint_filter import OneEuroJointFilter
+from tests.tracking.test_adapter import _good_joints
 
 
 def test_first_frame_passes_and_reset_forgets():
@@ -60,19 +61,17 @@ def test_bad_settings_name_the_value(kwargs, name):
 
 
 def _hand():
-    from softhand_sim.handmodel.kinematics import forward_kinematics
-    return forward_kinematics(np.array([0, 0, 0.9, 0, 0, 0, 1.0]), np.full((5, 4), 0.2))[0][:, :3]
+    return _good_joints()[:, :3]  # the adapter tests' hand
 
 
 def test_adapter_filters_relative_to_the_wrist():
     """Through the adapter (tracking_node's parameters): a still hand carried at 0.5 m/s comes out
     exactly as it went in (its travel is never delayed), while jitter of the joints against each
     other is smoothed; a rejected frame never enters the filter."""
-    from softhand_sim.params import TRACKING
+    from softhand_sim.params import load_params
     from softhand_tracking.adapter import bone_frames, tracker_adapter
 
-    p = {key: spec.default for key, spec in TRACKING.items()}
-    p["joint_filter"] = "one_euro"
+    p = load_params("tracking_node", None, {"joint_filter": "one_euro"})
     hand = _hand()
     a = tracker_adapter(p, "right")
     for k in range(50):
@@ -98,12 +97,11 @@ def test_adapter_filters_relative_to_the_wrist():
 def test_loop_starts_the_filter_afresh_after_a_dropout():
     """A hand that comes back after a dropout (the loop held its last target) is taken as it is,
     not blended with where it was before."""
-    from softhand_sim.params import TRACKING
+    from softhand_sim.params import load_params
     from softhand_tracking.adapter import bone_frames, tracker_adapter
     from softhand_tracking.loop import TrackingLoop
 
-    p = {key: spec.default for key, spec in TRACKING.items()}
-    p["joint_filter"] = "one_euro"
+    p = load_params("tracking_node", None, {"joint_filter": "one_euro"})
     loop = TrackingLoop(adapter=tracker_adapter(p, "right"), tracker_timeout=0.1)
     hand = _hand()
     bent = hand.copy()

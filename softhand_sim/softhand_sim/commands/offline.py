@@ -46,7 +46,7 @@ from softhand_sim.physics.rotations import quat_to_matrix
 from softhand_sim.scene import load_scene
 from softhand_sim.runtime import SimRuntime
 from softhand_tracking.adapter import tracker_adapter
-from softhand_tracking.loop import LoopConfig, TrackingLoop
+from softhand_tracking.loop import TrackingLoop, loop_config_from
 from softhand_world.world import World, WorldConfig
 
 MSGTYPE = "geometry_msgs/msg/PoseArray"
@@ -166,12 +166,8 @@ def run_pipeline(bag=None, synth=None, until=None, sim_latency=None, sim_overrid
     loops = {}
     for side in hands:  # one tracking node per hand
         adapter = tracker_adapter(tp, side)
-        loops[side] = TrackingLoop(LoopConfig(rate=tp["rate"], tracked_kx=tp["tracked_kx"],
-                                              tracked_ktheta=tp["tracked_ktheta"], sim_kx=tp["sim_kx"],
-                                              sim_ktheta=tp["sim_ktheta"], damping_ratio=tp["damping_ratio"],
-                                              feedback=tp["feedback"], extrapolate=tp["extrapolate"],
-                                              ref_smoothing=tp["ref_smoothing"]),
-                                   adapter, tracker_timeout=tp["tracker_timeout"], sim_timeout=tp["sim_timeout"])
+        loops[side] = TrackingLoop(loop_config_from(tp), adapter, tracker_timeout=tp["tracker_timeout"],
+                                   sim_timeout=tp["sim_timeout"])
     loop = loops[hands[0]]
     sim_dt = 1.0 / sp["sim_rate"]
     latency = sim_dt if sim_latency is None else float(sim_latency)

@@ -48,7 +48,7 @@ def build_parser():
 def main(argv=None):
     args = build_parser().parse_args(argv)
     from softhand_sim.topics import TOPIC_TYPES
-    from softhand_sim.ros.env import PROFILE_VARIABLES, local_profile
+    from softhand_sim.ros.env import set_loopback
     from softhand_sim.ros.foxglove import default_topics, serve  # rclpy from here on
 
     topics = default_topics()
@@ -59,11 +59,7 @@ def main(argv=None):
         topics = {t: TOPIC_TYPES[t] for t in args.topics}
     # loopback-only discovery, like every softhand process (ros/env.py: the local profile, no LAN
     # profile); the domain is the one to watch
-    os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
-    for name in ("ROS_LOCALHOST_ONLY", *PROFILE_VARIABLES):
-        os.environ.pop(name, None)
-    if local_profile() is not None:
-        os.environ[PROFILE_VARIABLES[0]] = str(local_profile())
+    set_loopback(os.environ)
     if args.domain_id is not None:
         os.environ["ROS_DOMAIN_ID"] = str(args.domain_id)
     stop = threading.Event()

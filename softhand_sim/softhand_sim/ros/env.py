@@ -61,16 +61,22 @@ def release_domain_id(domain) -> None:
 def isolated_env(domain_id=None, base=None) -> dict:
     """A copy of `base` (default os.environ) with loopback-only discovery and its own domain id."""
     env = dict(os.environ if base is None else base)
-    env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+    set_loopback(env)
     env["ROS_DOMAIN_ID"] = str(pick_domain_id() if domain_id is None else int(domain_id))
-    env.pop("ROS_LOCALHOST_ONLY", None)
-    for name in PROFILE_VARIABLES:
+    env.setdefault("PYTHONUNBUFFERED", "1")
+    return env
+
+
+def set_loopback(env) -> None:
+    """Loopback-only discovery in the mapping `env` (a dict, or os.environ for this process): the
+    range LOCALHOST, no ROS_LOCALHOST_ONLY, the local Fast DDS profile instead of any other. The
+    domain id is left as it is."""
+    env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+    for name in ("ROS_LOCALHOST_ONLY", *PROFILE_VARIABLES):
         env.pop(name, None)
     local = local_profile()
     if local is not None:
         env[PROFILE_VARIABLES[0]] = str(local)
-    env.setdefault("PYTHONUNBUFFERED", "1")
-    return env
 
 
 def local_profile():
@@ -93,12 +99,9 @@ def names_transports(profile) -> bool:
 def apply_isolated_env(domain_id=None) -> dict:
     """Apply `isolated_env` to this process (call before rclpy.init)."""
     env = isolated_env(domain_id)
-    for key in ("ROS_AUTOMATIC_DISCOVERY_RANGE", "ROS_DOMAIN_ID", "PYTHONUNBUFFERED"):
+    set_loopback(os.environ)
+    for key in ("ROS_DOMAIN_ID", "PYTHONUNBUFFERED"):
         os.environ[key] = env[key]
-    for name in ("ROS_LOCALHOST_ONLY", *PROFILE_VARIABLES):
-        os.environ.pop(name, None)
-        if name in env:
-            os.environ[name] = env[name]
     return env
 
 
