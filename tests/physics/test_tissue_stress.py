@@ -104,6 +104,73 @@ def test_fused_stress_stiffness_equals_reference(nl_k):
     assert np.abs(v_new - v_ref).max() <= 1e-11 * np.abs(v_ref).max()
 
 
+def test_fused_stress_stiffness_equals_reference_on_compressed_and_inverted_tets():
+    """The same on the random state with inverted tets, where most tets have one or two clamped
+    modes: the fused kernel's closed forms (twist_matrix) against the reference's Jacobi modes."""
+    from tests.physics.test_energy_terms import tissue_setup
+    X, tets, vol, Dm_inv, K0, x = tissue_setup(1, 0.003)
+    lam, mu = tissue.lame(E_YOUNG, NU)
+    n = x.size
+    indptr, indices, slots = _pattern(tets, n)
+    q = exact_polar_quats(x, X, tets)
+    v_new = np.zeros(len(indices))
+    tissue.add_all_fused(x, tets, Dm_inv, vol, lam, mu, q.copy(), 0, 0.0, 50.0, np.zeros(n), slots, v_new, True)
+    v_ref = np.zeros(len(indices))
+    tissue.add_all(x, X, tets, K0, vol, q, 0.0, 50.0, np.zeros(n), slots, v_ref)
+    tissue.add_stress_hessian(x, tets, Dm_inv, vol, lam, mu, q, 0.0, 50.0, slots, v_ref)
+    assert np.abs(v_new - v_ref).max() <= 1e-11 * np.abs(v_ref).max()
+
+
+def _twist_reference(S, lam, mu):
+    """sum_i max(q_i, 0) v_i v_i^T by numpy's eigh (the module docstring's definition)."""
+    w, V = np.linalg.eigh(0.5 * (S + S.T))
+    tr, Q, active = w.sum(), np.zeros((3, 3)), 0
+    for i in range(3):
+        m = tr - w[i]
+        qi = 4.0 * (mu * (m - 2.0) + lam * (tr - 3.0)) / m if m > tissue._TWIST_MIN else 0.0
+        if qi > 0.0:
+            Q += qi * np.outer(V[:, i], V[:, i])
+            active += 1
+    return Q, active
+
+
+def test_twist_matrix_equals_the_eigen_decomposition_in_every_case():
+    """twist_matrix's closed forms (every mode by (tr S I - S)^-1, one or two modes by one
+    eigenvector, Jacobi where those are ill conditioned) against numpy's eigh, on stretched,
+    slightly strained, nearly degenerate, near-identity and inverted S: equal to 1e-12 of 4 mu,
+    and each case is met."""
+    lam, mu = tissue.lame(E_YOUNG, NU)
+    rng = np.random.default_rng(7)
+    Q, scratch = np.zeros((3, 3)), np.zeros((7, 3))
+    seen = {0: 0, 1: 0, 2: 0, 3: 0}
+    fallback = 0
+    for k in range(6000):
+        kind = k % 5
+        if kind == 0:
+            sig = 1.0 + 0.3 * rng.normal(size=3)
+        elif kind == 1:
+            sig = 1.0 + 0.02 * rng.normal(size=3)
+        elif kind == 2:  # two nearly equal singular values
+            a = 1.0 + 0.1 * rng.normal()
+            sig = np.array([a, a + 1e-7 * rng.normal(), 1.0 + 0.1 * rng.normal()])
+        elif kind == 3:
+            sig = 1.0 + 1e-9 * rng.normal(size=3)
+        else:  # inverted and flattened tets too
+            sig = rng.uniform(-0.5, 2.0, size=3)
+        Rq, _ = np.linalg.qr(rng.normal(size=(3, 3)))
+        S = Rq @ np.diag(sig) @ Rq.T + 1e-3 * rng.normal(size=(3, 3))
+        ref, active = _twist_reference(S, lam, mu)
+        got = tissue.twist_matrix(S, lam, mu, Q, scratch)
+        assert got == active
+        if got:
+            assert np.abs(Q - ref).max() <= 1e-12 * 4.0 * mu
+        seen[got] += 1
+        Ss = 0.5 * (S + S.T)
+        fallback += tissue._twist_mixed(Ss[0, 0], Ss[1, 1], Ss[2, 2], Ss[0, 1], Ss[0, 2], Ss[1, 2],
+                                        np.trace(Ss), lam, mu, Q) < 0
+    assert min(seen.values()) > 100 and fallback > 100
+
+
 # ---------------------------------------------------------------- the issue's bar
 BAR = (0.10, 0.01, 0.01)   # [m], 20 x 2 x 2 cells of 5 mm
 

@@ -15,6 +15,10 @@ psi = mu |F - R|^2 + lam/2 (tr S - 3)^2 (S = R^T F), and the Hessian it misses i
 (m_i > 2) get the stress stiffening of a taut string (q_i > 0: without it one Newton step per
 time step overshoots stretched modes and a bar stretched 20-40 % rings); compressed ones would
 get q_i < 0, clamped to 0 (the fixed-R Hessian there). Exact wherever every q_i >= 0.
+The solver's fused kernel builds the same H_rot block-wise from one 3x3 matrix per tet
+(`twist_matrix`: Q = sum_i max(q_i, 0) v_i v_i^T in closed form, an eigen solve only where that
+is ill conditioned), a third of the reference's per-tet cost; `add_stress_hessian` keeps the
+mode-by-mode form as the reference (tests/physics/test_tissue_stress.py holds them equal).
 The gradient is exact when R is the exact polar rotation
 (R^T F symmetric), including inverted tets where R flips the smallest singular direction.
 
@@ -193,43 +197,58 @@ _TWIST_MIN = 1e-6  # [-] m_i below this (a tet flattened or inverted across two 
 
 
 @njit(cache=True)
-def sym_eig3(S, w, V, A):
+def _jacobi_angle(app, aqq, apq):
+    """(t, c, s) of the Jacobi rotation that zeroes apq of a symmetric matrix (t = tan)."""
+    theta = (aqq - app) / (2.0 * apq)
+    t = (1.0 if theta >= 0.0 else -1.0) / (abs(theta) + np.sqrt(theta * theta + 1.0))
+    c = 1.0 / np.sqrt(t * t + 1.0)
+    return t, c, t * c
+
+
+@njit(cache=True)
+def sym_eig3(S, w, V, A=None):
     """Eigenvalues w (3,) and eigenvectors (columns of V (3,3)) of the symmetric part of the 3x3 S
-    (cyclic Jacobi; S is not modified, A (3,3) scratch). Round-off in a few sweeps for any S."""
+    (cyclic Jacobi; S is not modified; A is unused, kept for callers that pass scratch). Round-off
+    in a few sweeps for any S. On scalars: each tet of the stress stiffness solves one, and array
+    writes per rotation cost 3x the time (measured on the coarse hand)."""
     a00, a01, a02, a11, a12, a22 = S[0, 0], 0.5 * (S[0, 1] + S[1, 0]), 0.5 * (S[0, 2] + S[2, 0]), \
         S[1, 1], 0.5 * (S[1, 2] + S[2, 1]), S[2, 2]
-    for i in range(3):
-        for j in range(3):
-            V[i, j] = 1.0 if i == j else 0.0
-    A[0, 0], A[0, 1], A[0, 2] = a00, a01, a02
-    A[1, 0], A[1, 1], A[1, 2] = a01, a11, a12
-    A[2, 0], A[2, 1], A[2, 2] = a02, a12, a22
+    v00, v01, v02, v10, v11, v12, v20, v21, v22 = 1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0
     scale = abs(a00) + abs(a11) + abs(a22) + 1e-300
     for _ in range(12):
-        off = A[0, 1] * A[0, 1] + A[0, 2] * A[0, 2] + A[1, 2] * A[1, 2]
-        if off <= 1e-30 * scale * scale:
+        if a01 * a01 + a02 * a02 + a12 * a12 <= 1e-30 * scale * scale:
             break
-        for p, q in ((0, 1), (0, 2), (1, 2)):
-            apq = A[p, q]
-            if apq == 0.0:
-                continue
-            theta = (A[q, q] - A[p, p]) / (2.0 * apq)
-            t = (1.0 if theta >= 0.0 else -1.0) / (abs(theta) + np.sqrt(theta * theta + 1.0))
-            c = 1.0 / np.sqrt(t * t + 1.0)
-            s = t * c
-            for k in range(3):  # A <- J^T A J with the Givens rotation J in the (p, q) plane
-                akp, akq = A[k, p], A[k, q]
-                A[k, p] = c * akp - s * akq
-                A[k, q] = s * akp + c * akq
-            for k in range(3):
-                apk, aqk = A[p, k], A[q, k]
-                A[p, k] = c * apk - s * aqk
-                A[q, k] = s * apk + c * aqk
-            for k in range(3):
-                vkp, vkq = V[k, p], V[k, q]
-                V[k, p] = c * vkp - s * vkq
-                V[k, q] = s * vkp + c * vkq
-    w[0], w[1], w[2] = A[0, 0], A[1, 1], A[2, 2]
+        if a01 != 0.0:  # (p, q) = (0, 1), the third index 2
+            t, c, s = _jacobi_angle(a00, a11, a01)
+            a00 -= t * a01
+            a11 += t * a01
+            a01 = 0.0
+            a02, a12 = c * a02 - s * a12, s * a02 + c * a12
+            v00, v01 = c * v00 - s * v01, s * v00 + c * v01
+            v10, v11 = c * v10 - s * v11, s * v10 + c * v11
+            v20, v21 = c * v20 - s * v21, s * v20 + c * v21
+        if a02 != 0.0:  # (0, 2), the third index 1
+            t, c, s = _jacobi_angle(a00, a22, a02)
+            a00 -= t * a02
+            a22 += t * a02
+            a02 = 0.0
+            a01, a12 = c * a01 - s * a12, s * a01 + c * a12
+            v00, v02 = c * v00 - s * v02, s * v00 + c * v02
+            v10, v12 = c * v10 - s * v12, s * v10 + c * v12
+            v20, v22 = c * v20 - s * v22, s * v20 + c * v22
+        if a12 != 0.0:  # (1, 2), the third index 0
+            t, c, s = _jacobi_angle(a11, a22, a12)
+            a11 -= t * a12
+            a22 += t * a12
+            a12 = 0.0
+            a01, a02 = c * a01 - s * a02, s * a01 + c * a02
+            v01, v02 = c * v01 - s * v02, s * v01 + c * v02
+            v11, v12 = c * v11 - s * v12, s * v11 + c * v12
+            v21, v22 = c * v21 - s * v22, s * v21 + c * v22
+    w[0], w[1], w[2] = a00, a11, a22
+    V[0, 0], V[0, 1], V[0, 2] = v00, v01, v02
+    V[1, 0], V[1, 1], V[1, 2] = v10, v11, v12
+    V[2, 0], V[2, 1], V[2, 2] = v20, v21, v22
 
 
 @njit(cache=True)
@@ -269,6 +288,151 @@ def twist_modes(R, S, gr, lam, mu, y, q, scratch):
             c2 = v0 * gr[a, 1] - v1 * gr[a, 0]
             for r in range(3):
                 y[i, a, r] = 0.5 * (R[r, 0] * c0 + R[r, 1] * c1 + R[r, 2] * c2)
+    return active
+
+
+_TWO_PI_3 = 2.0 * np.pi / 3.0
+
+
+@njit(cache=True)
+def _twist_all(s00, s11, s22, s01, s02, s12, tr, lam, mu, one_mode, qv, v0, v1, v2, Q):
+    """Q = f(S) - qv v v^T with f(S) = sum over all modes of q_i v_i v_i^T
+    = 4 mu I + 4 (lam (tr S - 3) - 2 mu) (tr S I - S)^-1 (every m_i > 0 needed), or with
+    one_mode Q = qv v v^T."""
+    if one_mode:
+        c = qv
+        Q[0, 0], Q[1, 1], Q[2, 2] = c * v0 * v0, c * v1 * v1, c * v2 * v2
+        Q[0, 1] = Q[1, 0] = c * v0 * v1
+        Q[0, 2] = Q[2, 0] = c * v0 * v2
+        Q[1, 2] = Q[2, 1] = c * v1 * v2
+        return
+    m00, m11, m22 = tr - s00, tr - s11, tr - s22   # M = tr I - S; its off-diagonals are -s_ij
+    c00 = m11 * m22 - s12 * s12
+    c01 = s12 * s02 + s01 * m22
+    c02 = s01 * s12 + s02 * m11
+    c11 = m00 * m22 - s02 * s02
+    c12 = s01 * s02 + s12 * m00
+    c22 = m00 * m11 - s01 * s01
+    det = m00 * c00 - s01 * c01 - s02 * c02
+    k = 4.0 * (lam * (tr - 3.0) - 2.0 * mu) / det   # M^-1 = cofactors / det (M symmetric)
+    c = qv
+    Q[0, 0] = 4.0 * mu + k * c00 - c * v0 * v0
+    Q[1, 1] = 4.0 * mu + k * c11 - c * v1 * v1
+    Q[2, 2] = 4.0 * mu + k * c22 - c * v2 * v2
+    Q[0, 1] = Q[1, 0] = k * c01 - c * v0 * v1
+    Q[0, 2] = Q[2, 0] = k * c02 - c * v0 * v2
+    Q[1, 2] = Q[2, 1] = k * c12 - c * v1 * v2
+
+
+@njit(cache=True)
+def _twist_mixed(s00, s11, s22, s01, s02, s12, tr, lam, mu, Q):
+    """twist_matrix's common mixed case without a Jacobi solve: the eigenvalues in closed form
+    (trigonometric solution of the characteristic cubic), and only the eigenvector of the one
+    mode whose sign differs from the other two's, by cross products of the rows of S - sigma I.
+    q(sigma) is monotone, so that mode is the largest or smallest sigma. Returns the number of
+    modes with q > 0 (Q written when > 0), or -1 where this is ill conditioned (S ~ s I, an m_i
+    <= 0.1, or the odd mode within 1e-3 of the spectrum's scale of the next): the caller then
+    solves with Jacobi."""
+    qm = tr / 3.0
+    p1 = s01 * s01 + s02 * s02 + s12 * s12
+    p2 = (s00 - qm) ** 2 + (s11 - qm) ** 2 + (s22 - qm) ** 2 + 2.0 * p1
+    if p2 <= 1e-24 * (qm * qm + 1e-300):
+        return -1  # S ~ s I: all modes (nearly) equal
+    pp = np.sqrt(p2 / 6.0)
+    b00, b11, b22 = (s00 - qm) / pp, (s11 - qm) / pp, (s22 - qm) / pp
+    b01, b02, b12 = s01 / pp, s02 / pp, s12 / pp
+    r = 0.5 * (b00 * (b11 * b22 - b12 * b12) - b01 * (b01 * b22 - b12 * b02) + b02 * (b01 * b12 - b11 * b02))
+    r = min(1.0, max(-1.0, r))
+    phi = np.arccos(r) / 3.0
+    w_hi = qm + 2.0 * pp * np.cos(phi)
+    w_lo = qm + 2.0 * pp * np.cos(phi + _TWO_PI_3)
+    w_mid = tr - w_hi - w_lo
+    m_hi, m_mid, m_lo = tr - w_hi, tr - w_mid, tr - w_lo  # m of each mode (m_hi smallest)
+    if m_hi <= 0.1:
+        return -1
+    vol = lam * (tr - 3.0)
+    q_hi = 4.0 * (mu * (m_hi - 2.0) + vol) / m_hi
+    q_mid = 4.0 * (mu * (m_mid - 2.0) + vol) / m_mid
+    q_lo = 4.0 * (mu * (m_lo - 2.0) + vol) / m_lo
+    pos = (q_hi > 0.0) + (q_mid > 0.0) + (q_lo > 0.0)
+    if pos == 0:
+        return 0
+    if pos == 3:
+        _twist_all(s00, s11, s22, s01, s02, s12, tr, lam, mu, False, 0.0, 0.0, 0.0, 0.0, Q)
+        return 3
+    # the odd mode: alone on its side of q = 0, at an end of the spectrum
+    if (q_hi > 0.0) != (q_mid > 0.0):
+        w_odd, q_odd, gap = w_hi, q_hi, w_hi - w_mid
+    else:
+        w_odd, q_odd, gap = w_lo, q_lo, w_mid - w_lo
+    if gap <= 1e-3 * (abs(w_hi) + abs(w_lo)):
+        return -1
+    # eigenvector of w_odd: the longest cross product of two rows of S - w_odd I
+    a00, a11, a22 = s00 - w_odd, s11 - w_odd, s22 - w_odd
+    x0, x1, x2 = s01 * s12 - s02 * a11, s02 * s01 - a00 * s12, a00 * a11 - s01 * s01   # row0 x row1
+    y0, y1, y2 = s01 * a22 - s02 * s12, s02 * s02 - a00 * a22, a00 * s12 - s01 * s02   # row0 x row2
+    z0, z1, z2 = a11 * a22 - s12 * s12, s12 * s02 - s01 * a22, s01 * s12 - a11 * s02   # row1 x row2
+    nx, ny, nz = x0 * x0 + x1 * x1 + x2 * x2, y0 * y0 + y1 * y1 + y2 * y2, z0 * z0 + z1 * z1 + z2 * z2
+    if nx >= ny and nx >= nz:
+        v0, v1, v2, n = x0, x1, x2, nx
+    elif ny >= nz:
+        v0, v1, v2, n = y0, y1, y2, ny
+    else:
+        v0, v1, v2, n = z0, z1, z2, nz
+    if n <= 0.0:
+        return -1
+    inv = 1.0 / np.sqrt(n)
+    v0, v1, v2 = v0 * inv, v1 * inv, v2 * inv
+    if q_odd > 0.0:  # one mode: Q = q v v^T
+        _twist_all(s00, s11, s22, s01, s02, s12, tr, lam, mu, True, q_odd, v0, v1, v2, Q)
+        return 1
+    # two modes: every mode's f(S), less the odd one's
+    _twist_all(s00, s11, s22, s01, s02, s12, tr, lam, mu, False, q_odd, v0, v1, v2, Q)
+    return 2
+
+
+@njit(cache=True)
+def twist_matrix(S, lam, mu, Q, scratch):
+    """The same stiffness as twist_modes in the rest axes as one 3x3 matrix: writes
+    Q = sum_i max(q_i, 0) v_i v_i^T [Pa] (so that H_rot's block of nodes a, b is
+    V/4 [h_a]x R Q R^T [h_b]x^T, h_a = R grad N_a) and returns the number of modes with q > 0.
+    Where Gershgorin's bounds show every q_i > 0 (most stretched tets) no eigen solve is needed:
+    q(sigma) = 4 mu + 4 (lam (tr S - 3) - 2 mu) / (tr S - sigma), so
+    Q = 4 mu I + 4 (lam (tr S - 3) - 2 mu) (tr S I - S)^-1; else Jacobi as twist_modes does.
+    S (3,3) (its symmetric part is used), scratch (7,3)."""
+    s00, s11, s22 = S[0, 0], S[1, 1], S[2, 2]
+    s01, s02, s12 = 0.5 * (S[0, 1] + S[1, 0]), 0.5 * (S[0, 2] + S[2, 0]), 0.5 * (S[1, 2] + S[2, 1])
+    tr = s00 + s11 + s22
+    r0, r1, r2 = abs(s01) + abs(s02), abs(s01) + abs(s12), abs(s02) + abs(s12)
+    low = min(s00 - r0, s11 - r1, s22 - r2)
+    if mu * (tr - low - 2.0) + lam * (tr - 3.0) <= 0.0:  # every q_i <= 0
+        return 0
+    high = max(s00 + r0, s11 + r1, s22 + r2)
+    if tr - high > _TWIST_MIN and mu * (tr - high - 2.0) + lam * (tr - 3.0) > 0.0:  # every q_i > 0
+        # M = tr I - S is symmetric positive definite here (eigenvalues m_i >= tr - high > 0)
+        _twist_all(s00, s11, s22, s01, s02, s12, tr, lam, mu, False, 0.0, 0.0, 0.0, 0.0, Q)
+        return 3
+    active = _twist_mixed(s00, s11, s22, s01, s02, s12, tr, lam, mu, Q)
+    if active >= 0:
+        return active
+    w = scratch[0]
+    V = scratch[1:4]
+    sym_eig3(S, w, V)
+    for r in range(3):
+        for c in range(3):
+            Q[r, c] = 0.0
+    active = 0
+    for i in range(3):
+        m = tr - w[i]
+        if m <= _TWIST_MIN:
+            continue
+        qi = 4.0 * (mu * (m - 2.0) + lam * (tr - 3.0)) / m
+        if qi <= 0.0:
+            continue
+        active += 1
+        for r in range(3):
+            for c in range(3):
+                Q[r, c] += qi * V[r, i] * V[c, i]
     return active
 
 
@@ -410,10 +574,12 @@ def add_all_fused(x, tets, Dm_inv, vol, lam, mu, tet_q, iterations, nl_k, nl_wma
     h = np.empty((4, 3))    # R grad N_a
     f = np.empty((4, 3))    # R K0 u per node [N]
     gg = np.empty((4, 4))
-    y = np.empty((3, 4, 3))  # twist modes (stress_stiffness)
-    qt = np.empty(3)
-    Rm = np.empty((3, 3))
+    Qt = np.empty((3, 3))    # twist stiffness in the rest axes (stress_stiffness)
+    QRt = np.empty((3, 3))
+    Qr = np.empty((3, 3))    # ... rotated: R Q R^T
+    Ax = np.empty((4, 3, 3))
     scratch = np.empty((7, 3))
+    Hl = np.empty((12, 12))  # the element Hessian before its scatter
     e_sum = 0.0
     for e in range(tets.shape[0]):
         i0, i1, i2, i3 = tets[e, 0], tets[e, 1], tets[e, 2], tets[e, 3]
@@ -484,6 +650,9 @@ def add_all_fused(x, tets, Dm_inv, vol, lam, mu, tet_q, iterations, nl_k, nl_wma
             na = 3 * tets[e, a]
             for i in range(3):
                 grad[na + i] += scale * f[a, i]
+        # the element's 12x12 Hessian in a local buffer, then one scatter of its 144 entries: the
+        # rotation (stress) stiffness adds up to three rank-1 terms to the same entries, and the
+        # scattered writes into the CSR values, not the flops, are what the kernel's time goes on
         for a in range(4):
             for b in range(a, 4):
                 dg = sm * gg[a, b]
@@ -495,23 +664,45 @@ def add_all_fused(x, tets, Dm_inv, vol, lam, mu, tet_q, iterations, nl_k, nl_wma
                         v = sl * hai * h[b, j] + sm * h[a, j] * hbi + fai * f[b, j]
                         if i == j:
                             v += dg
-                        # unsigned index: no wrap-around test per scatter
-                        values[np.uint64(slots[e, 3 * a + i, 3 * b + j])] += v
+                        Hl[3 * a + i, 3 * b + j] = v
+                        Hl[3 * b + j, 3 * a + i] = v
+        if stress_stiffness and twist_matrix(G, lam, mu, Qt, scratch) > 0:
+            # H_rot's block (a, b) = V/4 [h_a]x Q' [h_b]x^T with Q' = R Q R^T (twist_matrix):
+            # row i of [h_a]x Q' is h_a x (column i of Q'), row i of A [k]x^T is k x (row i of A)
+            for r in range(3):
+                t0 = Qt[r, 0] * R00 + Qt[r, 1] * R01 + Qt[r, 2] * R02   # (Q R^T)[r, 0]
+                t1 = Qt[r, 0] * R10 + Qt[r, 1] * R11 + Qt[r, 2] * R12
+                t2 = Qt[r, 0] * R20 + Qt[r, 1] * R21 + Qt[r, 2] * R22
+                QRt[r, 0], QRt[r, 1], QRt[r, 2] = t0, t1, t2
+            for c in range(3):
+                Qr[0, c] = R00 * QRt[0, c] + R01 * QRt[1, c] + R02 * QRt[2, c]
+                Qr[1, c] = R10 * QRt[0, c] + R11 * QRt[1, c] + R12 * QRt[2, c]
+                Qr[2, c] = R20 * QRt[0, c] + R21 * QRt[1, c] + R22 * QRt[2, c]
+            cs = 0.25 * scale * V
+            for a in range(4):
+                h0, h1, h2 = h[a, 0], h[a, 1], h[a, 2]
+                for c in range(3):  # A_a = cs [h_a]x Q' (Q' symmetric: column c = row c)
+                    q0, q1, q2 = Qr[0, c], Qr[1, c], Qr[2, c]
+                    Ax[a, 0, c] = cs * (h1 * q2 - h2 * q1)
+                    Ax[a, 1, c] = cs * (h2 * q0 - h0 * q2)
+                    Ax[a, 2, c] = cs * (h0 * q1 - h1 * q0)
+            for a in range(4):
+                for b in range(a, 4):
+                    k0, k1, k2 = h[b, 0], h[b, 1], h[b, 2]
+                    for i in range(3):
+                        a0, a1, a2 = Ax[a, i, 0], Ax[a, i, 1], Ax[a, i, 2]
+                        v0 = k1 * a2 - k2 * a1
+                        v1 = k2 * a0 - k0 * a2
+                        v2 = k0 * a1 - k1 * a0
+                        Hl[3 * a + i, 3 * b] += v0
+                        Hl[3 * a + i, 3 * b + 1] += v1
+                        Hl[3 * a + i, 3 * b + 2] += v2
                         if a != b:
-                            values[np.uint64(slots[e, 3 * b + j, 3 * a + i])] += v
-        if stress_stiffness:
-            Rm[0, 0], Rm[0, 1], Rm[0, 2] = R00, R01, R02
-            Rm[1, 0], Rm[1, 1], Rm[1, 2] = R10, R11, R12
-            Rm[2, 0], Rm[2, 1], Rm[2, 2] = R20, R21, R22
-            if twist_modes(Rm, G, gr, lam, mu, y, qt, scratch) > 0:
-                for m in range(3):
-                    if qt[m] == 0.0:
-                        continue
-                    c = scale * V * qt[m]
-                    for a in range(4):
-                        for i in range(3):
-                            ya = c * y[m, a, i]
-                            for b in range(4):
-                                for j in range(3):
-                                    values[np.uint64(slots[e, 3 * a + i, 3 * b + j])] += ya * y[m, b, j]
+                            Hl[3 * b, 3 * a + i] += v0
+                            Hl[3 * b + 1, 3 * a + i] += v1
+                            Hl[3 * b + 2, 3 * a + i] += v2
+        for r in range(12):
+            for c in range(12):
+                # unsigned index: no wrap-around test per scatter
+                values[np.uint64(slots[e, r, c])] += Hl[r, c]
     return e_sum
