@@ -150,3 +150,40 @@ def test_friction_sticks_below_and_slides_above_mu(ratio, slides):
         assert creep > 5e-3, creep
     else:
         assert abs(creep) < 5e-5, creep
+
+
+def test_broad_phase_misses_no_candidate_of_the_deformed_fist():
+    """The collide stage's broad phase (bounds of each segment's skin and of its clusters of 32
+    points, from the current skin) keeps every (point, segment) pair a brute-force pass keeps:
+    on the coarse hand deformed by the fist (skin up to centimetres off its bone's rigid motion),
+    a fresh system tests exactly the allowed pairs whose point lies in the other segment's box."""
+    from softhand_sim.handmodel import load_or_build_hand
+    from softhand_sim.handmodel.rigid_skin import skin_segments
+    from softhand_sim.physics.contact.self_contact import build_self_contact_system
+    from softhand_sim.physics.embedded import embedded_positions
+    from softhand_sim.physics.rotations import quat_to_matrix
+    from softhand_sim.scenarios.self_contact import Fist
+    asset = load_or_build_hand(resolution="coarse")
+    model = build_model(asset)
+    sc = build_self_contact_system(model, asset, skin_segments(asset))
+    solver = Solver(model, self_contacts=sc)
+    state, control = model.initial_state(), model.control()
+    fist = Fist(asset, sc.model)
+    for k in range(40):  # into the fist: contacts everywhere, the tissue strained
+        control.set_bone_targets(model, fist.bone_targets(k / 60.0))
+        solver.step(state, control, 1.0 / 60.0)
+    assert sc.count > 200
+    fresh = SelfContactSystem(sc.model, model)
+    fresh.collide(state.node_x, state.body_x, state.body_q, state.v, model.body_dof0, state.tet_q)
+    m = sc.model
+    xp = np.zeros((m.point_count, 3))
+    embedded_positions(state.node_x, model.tets, m.point_tet, m.point_bary, xp)
+    expected = 0
+    for B in range(m.segment_count):
+        b = m.seg_body[B]
+        R = quat_to_matrix(state.body_q[b])
+        local = (xp - (state.body_x[b] - R @ model.body_com_local[b])) @ R
+        inside = ((local >= m.seg_lo[B] - m.margin) & (local <= m.seg_hi[B] + m.margin)).all(axis=1)
+        allowed = (m.pair_ok[m.point_segment, B] == 1) & ((m.point_exclude >> np.uint64(B)) & np.uint64(1) == 0)
+        expected += int((inside & allowed).sum())
+    assert fresh.tested == expected > 1000

@@ -15,6 +15,12 @@ def embedded_point(x, tets, t, bary, out):
 
 @njit(cache=True)
 def embedded_positions(x, tets, point_tet, point_bary, out):
-    """out (P,3) [m]: every point p in tet point_tet[p] with weights point_bary[p] (P,4)."""
+    """out (P,3) [m]: every point p in tet point_tet[p] with weights point_bary[p] (P,4).
+    Written out on scalars: a call of embedded_point per point (two array views each) took 4x
+    the time (0.30 against 0.08 ms for the 11,822 skin points of the coarse hand)."""
     for p in range(point_tet.shape[0]):
-        embedded_point(x, tets, point_tet[p], point_bary[p], out[p])
+        t = point_tet[p]
+        i0, i1, i2, i3 = tets[t, 0], tets[t, 1], tets[t, 2], tets[t, 3]
+        b0, b1, b2, b3 = point_bary[p, 0], point_bary[p, 1], point_bary[p, 2], point_bary[p, 3]
+        for i in range(3):
+            out[p, i] = b0 * x[i0, i] + b1 * x[i1, i] + b2 * x[i2, i] + b3 * x[i3, i]
