@@ -52,6 +52,7 @@ import numpy as np
 from numba import njit
 
 from softhand_sim.physics.contact import sdf
+from softhand_sim.physics.contact.clusters import spatial_clusters
 from softhand_sim.physics.contact.contact_model import vertex_areas
 from softhand_sim.physics.contact.sdf_mesh import mesh_signed_distance_grid
 from softhand_sim.physics.embedded import embedded_positions
@@ -61,24 +62,6 @@ from softhand_sim.physics.rotations import quat_matrix_entries, quat_to_matrix
 STICK, SLIP, SLIDING = 0, 1, 2
 _CONE_SLACK = 1e-9
 MAX_DEPTH = 0.01  # [m] a kept contact deeper than this has passed through: released (found afresh)
-CLUSTER_SIZE = 32     # skin points per cluster of the broad phase's second level
-
-
-def _clusters(points, size=CLUSTER_SIZE):
-    """Index lists of spatially compact clusters of at most `size` points (recursive median
-    split along the longest side of the bounding box)."""
-    out, todo = [], [np.arange(len(points))]
-    while todo:
-        idx = todo.pop()
-        if len(idx) <= size:
-            out.append(idx)
-            continue
-        pts = points[idx]
-        axis = int(np.argmax(pts.max(axis=0) - pts.min(axis=0)))
-        order = idx[np.argsort(pts[:, axis], kind="stable")]
-        half = len(order) // 2
-        todo += [order[half:], order[:half]]
-    return out
 
 
 @dataclass
@@ -222,7 +205,7 @@ def build_self_contact_model(model, points_rest_tet, points_bary, triangles, poi
     order, seg_clusters, cluster_start = [], [0], [0]
     for s in range(S):
         own = np.flatnonzero(pseg == s)
-        for idx in _clusters(prest[own]):
+        for idx in spatial_clusters(prest[own]):
             order.append(own[idx])
             cluster_start.append(cluster_start[-1] + len(idx))
         seg_clusters.append(len(cluster_start) - 1)
