@@ -331,6 +331,22 @@ def _sphere_box_gap2(c, RB, oB, lo, hi, margin):
 
 
 @njit(cache=True)
+def _new_anchor(p_local, s, grid_values, grid_adr, grid_origin, grid_voxel, grid_dims, grid_nearest,
+                seg_rest_R, seg_rest_o, point_rest, point_tet, tet_q, a_local, n_local, o_rest, n_rest,
+                Rt, o, n):
+    """A new anchor on segment s for the bone-frame point p_local: its closest rest surface point
+    (a_local, n_local), the anchor vertex there (returned) with its rest offset and normal (o_rest,
+    n_rest), and both turned with the vertex's tet now (Rt, o, n)."""
+    _project(grid_values, grid_adr, grid_origin, grid_voxel, grid_dims, s, p_local, a_local, n_local)
+    vb = _anchor_from_local(a_local, n_local, s, seg_rest_R, seg_rest_o, point_rest, o_rest,
+                            n_rest, grid_nearest, grid_adr, grid_origin, grid_voxel, grid_dims)
+    _tet_rotation(tet_q, point_tet[vb], Rt)
+    _matvec(Rt, o_rest, o)
+    _matvec(Rt, n_rest, n)
+    return vb
+
+
+@njit(cache=True)
 def collide_kernel(node_x, body_x, body_q, body_com_local, v, tets, tet_q,
                    point_tet, point_bary, point_rest, point_area, point_segment, point_exclude,
                    seg_points, seg_start, seg_clusters, cluster_start,
@@ -423,12 +439,9 @@ def collide_kernel(node_x, body_x, body_q, body_com_local, v, tets, tet_q,
                 local[i] = a  # world-at-rest offset from the bone origin
             for i in range(3):
                 a_local[i] = Rr[0, i] * local[0] + Rr[1, i] * local[1] + Rr[2, i] * local[2]
-            _project(grid_values, grid_adr, grid_origin, grid_voxel, grid_dims, s, a_local, a_local, n_local)
-            vb = _anchor_from_local(a_local, n_local, s, seg_rest_R, seg_rest_o, point_rest, o_rest,
-                                    n_rest, grid_nearest, grid_adr, grid_origin, grid_voxel, grid_dims)
-            _tet_rotation(tet_q, point_tet[vb], Rt)
-            _matvec(Rt, o_rest, o)
-            _matvec(Rt, n_rest, n)
+            vb = _new_anchor(a_local, s, grid_values, grid_adr, grid_origin, grid_voxel, grid_dims, grid_nearest,
+                             seg_rest_R, seg_rest_o, point_rest, point_tet, tet_q, a_local, n_local,
+                             o_rest, n_rest, Rt, o, n)
             for i in range(3):
                 D[i] = xp[vb, i] + o[i] - xp[p, i]
             dn = n[0] * D[0] + n[1] * D[1] + n[2] * D[2]
@@ -491,12 +504,9 @@ def collide_kernel(node_x, body_x, body_q, body_com_local, v, tets, tet_q,
                         d = _field(grid_values, grid_adr, grid_origin, grid_voxel, grid_dims, B, local)
                         if d >= margin:
                             continue
-                        _project(grid_values, grid_adr, grid_origin, grid_voxel, grid_dims, B, local, a_local, n_local)
-                        vb = _anchor_from_local(a_local, n_local, B, seg_rest_R, seg_rest_o, point_rest, o_rest,
-                                                n_rest, grid_nearest, grid_adr, grid_origin, grid_voxel, grid_dims)
-                        _tet_rotation(tet_q, point_tet[vb], Rt)
-                        _matvec(Rt, o_rest, o)
-                        _matvec(Rt, n_rest, n)
+                        vb = _new_anchor(local, B, grid_values, grid_adr, grid_origin, grid_voxel, grid_dims,
+                                         grid_nearest, seg_rest_R, seg_rest_o, point_rest, point_tet, tet_q,
+                                         a_local, n_local, o_rest, n_rest, Rt, o, n)
                         dn = 0.0
                         for i in range(3):
                             D[i] = xp[vb, i] + o[i] - xp[p, i]
