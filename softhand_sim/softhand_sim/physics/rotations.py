@@ -53,13 +53,18 @@ def quat_matrix_entries(x, y, z, w):
 
 
 @njit(cache=True)
-def quat_to_matrix(q):
+def quat_to_matrix_into(q, m):
+    """m (3,3) = the rotation matrix of unit quaternion q, in place (loops that run per contact)."""
     m00, m01, m02, m10, m11, m12, m20, m21, m22 = quat_matrix_entries(q[0], q[1], q[2], q[3])
-    m = np.empty((3, 3))
     m[0, 0], m[0, 1], m[0, 2] = m00, m01, m02
     m[1, 0], m[1, 1], m[1, 2] = m10, m11, m12
     m[2, 0], m[2, 1], m[2, 2] = m20, m21, m22
     return m
+
+
+@njit(cache=True)
+def quat_to_matrix(q):
+    return quat_to_matrix_into(q, np.empty((3, 3)))
 
 
 @njit(cache=True)

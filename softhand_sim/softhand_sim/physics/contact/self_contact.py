@@ -57,7 +57,7 @@ from softhand_sim.physics.contact.contact_model import vertex_areas
 from softhand_sim.physics.contact.sdf_mesh import mesh_signed_distance_grid
 from softhand_sim.physics.embedded import embedded_positions
 from softhand_sim.physics.energies import self_contact as energy
-from softhand_sim.physics.rotations import quat_matrix_entries, quat_to_matrix
+from softhand_sim.physics.rotations import quat_to_matrix, quat_to_matrix_into
 
 STICK, SLIP, SLIDING = 0, 1, 2
 _CONE_SLACK = 1e-9
@@ -74,7 +74,6 @@ class SelfContactModel:
     point_segment: np.ndarray  # (P,) i4
     point_exclude: np.ndarray  # (P,) u8 bit s: never touches segment s (rest_clearance rule)
     seg_points: np.ndarray     # (P,) i4 point indices sorted by segment, then by cluster
-    seg_start: np.ndarray      # (S+1,) i8 range of each segment in seg_points
     seg_clusters: np.ndarray   # (S+1,) i8 range of each segment's clusters
     cluster_start: np.ndarray  # (K+1,) i8 range of each cluster in seg_points
     seg_body: np.ndarray       # (S,) i4 solver body (bone) carrying the segment
@@ -210,7 +209,6 @@ def build_self_contact_model(model, points_rest_tet, points_bary, triangles, poi
             cluster_start.append(cluster_start[-1] + len(idx))
         seg_clusters.append(len(cluster_start) - 1)
     order = np.concatenate(order).astype(np.int32)
-    seg_start = np.searchsorted(pseg[order], np.arange(S + 1)).astype(np.int64)
     # rest_clearance rule: a point never touches a segment whose rest skin is that close
     exclude = np.zeros(len(prest), np.uint64)
     for s in range(S):
@@ -222,9 +220,8 @@ def build_self_contact_model(model, points_rest_tet, points_bary, triangles, poi
         exclude[close] |= np.uint64(1) << np.uint64(s)
     return SelfContactModel(
         point_tet=ptet, point_bary=pbary, point_rest=prest, point_area=area, point_segment=pseg,
-        point_exclude=exclude, seg_points=order, seg_start=seg_start,
+        point_exclude=exclude, seg_points=order,
         seg_clusters=np.array(seg_clusters, np.int64), cluster_start=np.array(cluster_start, np.int64),
-
         seg_body=segb, seg_rest_R=Rr,
         seg_rest_o=orr, seg_lo=lo, seg_hi=hi, pair_ok=pair_ok,
         grid_values=np.concatenate(values), grid_nearest=np.concatenate(nearest),
@@ -301,16 +298,6 @@ def _store(c, p, seg, vb, o_rest, n_rest, o, n, slip, point_tet, point_bary, poi
 
 
 @njit(cache=True)
-def _tet_rotation(tet_q, e, out):
-    """out (3,3) = the rotation of tet e (no allocation: the contact loops call it per contact)."""
-    q = tet_q[e]
-    r = quat_matrix_entries(q[0], q[1], q[2], q[3])
-    for i in range(3):
-        for j in range(3):
-            out[i, j] = r[3 * i + j]
-
-
-@njit(cache=True)
 def _matvec(A, v, out):
     for i in range(3):
         out[i] = A[i, 0] * v[0] + A[i, 1] * v[1] + A[i, 2] * v[2]
@@ -340,7 +327,7 @@ def _new_anchor(p_local, s, grid_values, grid_adr, grid_origin, grid_voxel, grid
     _project(grid_values, grid_adr, grid_origin, grid_voxel, grid_dims, s, p_local, a_local, n_local)
     vb = _anchor_from_local(a_local, n_local, s, seg_rest_R, seg_rest_o, point_rest, o_rest,
                             n_rest, grid_nearest, grid_adr, grid_origin, grid_voxel, grid_dims)
-    _tet_rotation(tet_q, point_tet[vb], Rt)
+    quat_to_matrix_into(tet_q[point_tet[vb]], Rt)
     _matvec(Rt, o_rest, o)
     _matvec(Rt, n_rest, n)
     return vb
@@ -349,7 +336,7 @@ def _new_anchor(p_local, s, grid_values, grid_adr, grid_origin, grid_voxel, grid
 @njit(cache=True)
 def collide_kernel(node_x, body_x, body_q, body_com_local, v, tets, tet_q,
                    point_tet, point_bary, point_rest, point_area, point_segment, point_exclude,
-                   seg_points, seg_start, seg_clusters, cluster_start,
+                   seg_points, seg_clusters, cluster_start,
                    seg_body, seg_rest_R, seg_rest_o, seg_lo, seg_hi, pair_ok, grid_values, grid_nearest, grid_adr, grid_origin,
                    grid_voxel, grid_dims, kn, kf, mu, margin, active, xp,
                    prev_count, prev_point, prev_seg, prev_vb, prev_orest, prev_nrest,
@@ -409,7 +396,7 @@ def collide_kernel(node_x, body_x, body_q, body_com_local, v, tets, tet_q,
         p, s, vb = prev_point[k], prev_seg[k], prev_vb[k]
         o_rest[:] = prev_orest[k]
         n_rest[:] = prev_nrest[k]
-        _tet_rotation(tet_q, point_tet[vb], Rt)
+        quat_to_matrix_into(tet_q[point_tet[vb]], Rt)
         _matvec(Rt, o_rest, o)
         _matvec(Rt, n_rest, n)
         for i in range(3):
@@ -576,7 +563,7 @@ class SelfContactSystem:
         self.count, self.dropped, self.tested = collide_kernel(
             node_x, body_x, body_q, self.body_com_local, v, self.tets, tet_q,
             m.point_tet, m.point_bary, m.point_rest, m.point_area, m.point_segment, m.point_exclude,
-            m.seg_points, m.seg_start, m.seg_clusters, m.cluster_start,
+            m.seg_points, m.seg_clusters, m.cluster_start,
             m.seg_body, m.seg_rest_R, m.seg_rest_o, m.seg_lo, m.seg_hi, m.pair_ok, m.grid_values, m.grid_nearest, m.grid_adr,
             m.grid_origin, m.grid_voxel, m.grid_dims, m.kn, m.kf, m.mu, m.margin, self.active, self._xp,
             self.count, prev["point"], prev["seg"], prev["vb"], prev["orest"], prev["nrest"],

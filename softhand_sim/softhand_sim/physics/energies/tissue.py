@@ -206,11 +206,11 @@ def _jacobi_angle(app, aqq, apq):
 
 
 @njit(cache=True)
-def sym_eig3(S, w, V, A=None):
+def sym_eig3(S, w, V):
     """Eigenvalues w (3,) and eigenvectors (columns of V (3,3)) of the symmetric part of the 3x3 S
-    (cyclic Jacobi; S is not modified; A is unused, kept for callers that pass scratch). Round-off
-    in a few sweeps for any S. On scalars: each tet of the stress stiffness solves one, and array
-    writes per rotation cost 3x the time (measured on the coarse hand)."""
+    (cyclic Jacobi; S is not modified). Round-off in a few sweeps for any S. On scalars, the three
+    rotations of a sweep written out: array writes per rotation cost 3x the time (measured on the
+    coarse hand, where the stress stiffness solved one per tet)."""
     a00, a01, a02, a11, a12, a22 = S[0, 0], 0.5 * (S[0, 1] + S[1, 0]), 0.5 * (S[0, 2] + S[2, 0]), \
         S[1, 1], 0.5 * (S[1, 2] + S[2, 1]), S[2, 2]
     v00, v01, v02, v10, v11, v12, v20, v21, v22 = 1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0
@@ -252,6 +252,12 @@ def sym_eig3(S, w, V, A=None):
 
 
 @njit(cache=True)
+def _twist_q(m, tr, lam, mu):
+    """The twist stiffness q [Pa] of a mode with m = tr S - sigma (module docstring), unclamped."""
+    return 4.0 * (mu * (m - 2.0) + lam * (tr - 3.0)) / m
+
+
+@njit(cache=True)
 def twist_modes(R, S, gr, lam, mu, y, q, scratch):
     """The rotation (stress) stiffness of one tet, see the module docstring: writes the three
     twist modes y (3,4,3) [1/m] (mode i, node a) and their clamped stiffness q (3,) [Pa]
@@ -268,14 +274,14 @@ def twist_modes(R, S, gr, lam, mu, y, q, scratch):
         return 0
     w = scratch[0]
     V = scratch[1:4]
-    sym_eig3(S, w, V, scratch[4:7])
+    sym_eig3(S, w, V)
     tr = w[0] + w[1] + w[2]
     active = 0
     for i in range(3):
         m = tr - w[i]
         qi = 0.0
         if m > _TWIST_MIN:
-            qi = 4.0 * (mu * (m - 2.0) + lam * (tr - 3.0)) / m
+            qi = _twist_q(m, tr, lam, mu)
         if qi <= 0.0:
             q[i] = 0.0
             continue
@@ -295,17 +301,18 @@ _TWO_PI_3 = 2.0 * np.pi / 3.0
 
 
 @njit(cache=True)
-def _twist_all(s00, s11, s22, s01, s02, s12, tr, lam, mu, one_mode, qv, v0, v1, v2, Q):
+def _twist_one(qv, v0, v1, v2, Q):
+    """Q = qv v v^T: one mode."""
+    Q[0, 0], Q[1, 1], Q[2, 2] = qv * v0 * v0, qv * v1 * v1, qv * v2 * v2
+    Q[0, 1] = Q[1, 0] = qv * v0 * v1
+    Q[0, 2] = Q[2, 0] = qv * v0 * v2
+    Q[1, 2] = Q[2, 1] = qv * v1 * v2
+
+
+@njit(cache=True)
+def _twist_all(s00, s11, s22, s01, s02, s12, tr, lam, mu, qv, v0, v1, v2, Q):
     """Q = f(S) - qv v v^T with f(S) = sum over all modes of q_i v_i v_i^T
-    = 4 mu I + 4 (lam (tr S - 3) - 2 mu) (tr S I - S)^-1 (every m_i > 0 needed), or with
-    one_mode Q = qv v v^T."""
-    if one_mode:
-        c = qv
-        Q[0, 0], Q[1, 1], Q[2, 2] = c * v0 * v0, c * v1 * v1, c * v2 * v2
-        Q[0, 1] = Q[1, 0] = c * v0 * v1
-        Q[0, 2] = Q[2, 0] = c * v0 * v2
-        Q[1, 2] = Q[2, 1] = c * v1 * v2
-        return
+    = 4 mu I + 4 (lam (tr S - 3) - 2 mu) (tr S I - S)^-1 (every m_i > 0 needed); qv = 0: all modes."""
     m00, m11, m22 = tr - s00, tr - s11, tr - s22   # M = tr I - S; its off-diagonals are -s_ij
     c00 = m11 * m22 - s12 * s12
     c01 = s12 * s02 + s01 * m22
@@ -350,15 +357,12 @@ def _twist_mixed(s00, s11, s22, s01, s02, s12, tr, lam, mu, Q):
     m_hi, m_mid, m_lo = tr - w_hi, tr - w_mid, tr - w_lo  # m of each mode (m_hi smallest)
     if m_hi <= 0.1:
         return -1
-    vol = lam * (tr - 3.0)
-    q_hi = 4.0 * (mu * (m_hi - 2.0) + vol) / m_hi
-    q_mid = 4.0 * (mu * (m_mid - 2.0) + vol) / m_mid
-    q_lo = 4.0 * (mu * (m_lo - 2.0) + vol) / m_lo
+    q_hi, q_mid, q_lo = _twist_q(m_hi, tr, lam, mu), _twist_q(m_mid, tr, lam, mu), _twist_q(m_lo, tr, lam, mu)
     pos = (q_hi > 0.0) + (q_mid > 0.0) + (q_lo > 0.0)
     if pos == 0:
         return 0
     if pos == 3:
-        _twist_all(s00, s11, s22, s01, s02, s12, tr, lam, mu, False, 0.0, 0.0, 0.0, 0.0, Q)
+        _twist_all(s00, s11, s22, s01, s02, s12, tr, lam, mu, 0.0, 0.0, 0.0, 0.0, Q)
         return 3
     # the odd mode: alone on its side of q = 0, at an end of the spectrum
     if (q_hi > 0.0) != (q_mid > 0.0):
@@ -384,10 +388,10 @@ def _twist_mixed(s00, s11, s22, s01, s02, s12, tr, lam, mu, Q):
     inv = 1.0 / np.sqrt(n)
     v0, v1, v2 = v0 * inv, v1 * inv, v2 * inv
     if q_odd > 0.0:  # one mode: Q = q v v^T
-        _twist_all(s00, s11, s22, s01, s02, s12, tr, lam, mu, True, q_odd, v0, v1, v2, Q)
+        _twist_one(q_odd, v0, v1, v2, Q)
         return 1
     # two modes: every mode's f(S), less the odd one's
-    _twist_all(s00, s11, s22, s01, s02, s12, tr, lam, mu, False, q_odd, v0, v1, v2, Q)
+    _twist_all(s00, s11, s22, s01, s02, s12, tr, lam, mu, q_odd, v0, v1, v2, Q)
     return 2
 
 
@@ -396,9 +400,10 @@ def twist_matrix(S, lam, mu, Q, scratch):
     """The same stiffness as twist_modes in the rest axes as one 3x3 matrix: writes
     Q = sum_i max(q_i, 0) v_i v_i^T [Pa] (so that H_rot's block of nodes a, b is
     V/4 [h_a]x R Q R^T [h_b]x^T, h_a = R grad N_a) and returns the number of modes with q > 0.
-    Where Gershgorin's bounds show every q_i > 0 (most stretched tets) no eigen solve is needed:
-    q(sigma) = 4 mu + 4 (lam (tr S - 3) - 2 mu) / (tr S - sigma), so
-    Q = 4 mu I + 4 (lam (tr S - 3) - 2 mu) (tr S I - S)^-1; else Jacobi as twist_modes does.
+    q(sigma) = 4 mu + 4 (lam (tr S - 3) - 2 mu) / (tr S - sigma), so where every q_i > 0
+    Q = 4 mu I + 4 (lam (tr S - 3) - 2 mu) (tr S I - S)^-1, no eigen solve. In order: Gershgorin's
+    bounds (no mode, or every mode, stretched); else the closed-form eigenvalues and one
+    eigenvector (_twist_mixed); else, where that is ill conditioned, Jacobi (sym_eig3).
     S (3,3) (its symmetric part is used), scratch (7,3)."""
     s00, s11, s22 = S[0, 0], S[1, 1], S[2, 2]
     s01, s02, s12 = 0.5 * (S[0, 1] + S[1, 0]), 0.5 * (S[0, 2] + S[2, 0]), 0.5 * (S[1, 2] + S[2, 1])
@@ -410,7 +415,7 @@ def twist_matrix(S, lam, mu, Q, scratch):
     high = max(s00 + r0, s11 + r1, s22 + r2)
     if tr - high > _TWIST_MIN and mu * (tr - high - 2.0) + lam * (tr - 3.0) > 0.0:  # every q_i > 0
         # M = tr I - S is symmetric positive definite here (eigenvalues m_i >= tr - high > 0)
-        _twist_all(s00, s11, s22, s01, s02, s12, tr, lam, mu, False, 0.0, 0.0, 0.0, 0.0, Q)
+        _twist_all(s00, s11, s22, s01, s02, s12, tr, lam, mu, 0.0, 0.0, 0.0, 0.0, Q)
         return 3
     active = _twist_mixed(s00, s11, s22, s01, s02, s12, tr, lam, mu, Q)
     if active >= 0:
@@ -426,7 +431,7 @@ def twist_matrix(S, lam, mu, Q, scratch):
         m = tr - w[i]
         if m <= _TWIST_MIN:
             continue
-        qi = 4.0 * (mu * (m - 2.0) + lam * (tr - 3.0)) / m
+        qi = _twist_q(m, tr, lam, mu)
         if qi <= 0.0:
             continue
         active += 1
