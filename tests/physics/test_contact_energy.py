@@ -170,3 +170,51 @@ def test_slipping_contact_hessian_has_only_the_normal_stiffness():
         # isolate contact c by zeroing the others' areas
         s1["area"] = np.where(np.arange(3) == c, s["area"], 0.0)
         np.testing.assert_allclose(_dense_hessian(s1), expected, rtol=1e-10, atol=1e-9)
+
+
+def _stencil(nodes, body):
+    """The global dofs of a contact's nodes and (if dynamic) its body's (c, theta)."""
+    dofs = [3 * n + i for n in sorted(set(nodes)) for i in range(3)]
+    if body >= 0:
+        dofs += [BODY_DOF0 + 6 * body + i for i in range(6)]
+    return dofs
+
+
+@pytest.mark.parametrize("seed", [8, 9])
+def test_hessian_on_a_sparse_block_pattern_equals_the_dense_one(seed):
+    """add_hessian finds its 3x3 blocks in a sparse pattern (one search per block, the same
+    offset in the block's three rows) and writes what it writes into a dense one; a node-body
+    pair the pattern leaves out is skipped and counted, the rest unchanged."""
+    from scipy.sparse import csr_matrix
+
+    from softhand_sim.physics.energies.assembly import build_pattern, stencil_slots
+
+    s = _setup(np.random.default_rng(seed))
+    s["slip"] = np.array([2, 0, 0], np.uint8)
+    n = BODY_DOF0 + 12
+    dense = _dense_hessian(s)
+    for drop_body in (False, True):
+        stencils = [np.array([_stencil(s["nodes"][c], -1 if (drop_body and c == 0) else s["body"][c])])
+                    for c in range(3)]
+        if drop_body:  # the pattern still holds body 1's own block, not its coupling to contact 0's nodes
+            stencils.append(np.array([_stencil([], 1)]))
+        indptr, indices = build_pattern(n, stencils)
+        assert len(indices) < 0.7 * n * n and len(set(np.diff(indptr))) >= 3  # rows of different lengths
+        values = np.zeros(len(indices))
+        skipped = ce.add_hessian(*_args(s), s["slip"], BODY_DOF0, indptr, indices, values)
+        H = csr_matrix((values, indices, indptr), shape=(n, n)).toarray()
+        in_pattern = csr_matrix((np.ones(len(indices)), indices, indptr), shape=(n, n)).toarray() > 0
+        np.testing.assert_allclose(H[in_pattern], dense[in_pattern], rtol=1e-12, atol=1e-9)
+        assert skipped == np.count_nonzero(dense[~in_pattern])
+        assert (skipped > 0) == drop_body
+        # the solver's path: node-node blocks through the tets' slots (contacts 0 and 1 lie in
+        # tets 0 and 1, nodes in tet order; contact 2 is a surface node: searched), body-body
+        # blocks through the bodies' slots; the same values and skips
+        tets = s["nodes"][:2]
+        tet_slots = stencil_slots(indptr, indices, (3 * tets[:, :, None] + np.arange(3)).reshape(2, 12))
+        body_slots = stencil_slots(indptr, indices, BODY_DOF0 + 6 * np.arange(2)[:, None] + np.arange(6))
+        slotted = np.zeros(len(indices))
+        skipped2 = ce.add_hessian(*_args(s), s["slip"], BODY_DOF0, indptr, indices, slotted,
+                                  np.array([0, 1, -1], np.int32), tet_slots, body_slots)
+        np.testing.assert_allclose(slotted, values, rtol=1e-12, atol=1e-9)
+        assert skipped2 == skipped

@@ -36,6 +36,7 @@ class ContactModel:
     point_bary_body: np.ndarray  # (P,4) weights used against dynamic objects (see body_weights)
     point_area: np.ndarray    # (P,) [m^2]
     point_hand: np.ndarray    # (P,) i4 hand index (model.hands) of each skin point
+    point_tet: np.ndarray     # (P,) i4 the tet whose nodes, in order, are point_nodes (-1: a surface node)
     hand_point0: np.ndarray   # (H+1,) i8 the points of hand h are hand_point0[h]:hand_point0[h+1]
     hand_code: np.ndarray     # (H,) u1 the contacts' `hand` field per hand: 0 right, 1 left
     object_names: list        # (O,) scene object names, then "ground"
@@ -104,13 +105,16 @@ def hand_codes(model, count):
 
 
 def skin_points(model, asset=None, points="surface"):
-    """(nodes (P,4), bary (P,4), area (P,)) for points="skin" (embedded skin vertices, needs the
-    HandAsset) or "surface" (tet surface nodes, areas from the tet surface triangles)."""
+    """(nodes (P,4), bary (P,4), area (P,), tet (P,)) for points="skin" (embedded skin vertices,
+    needs the HandAsset; tet: the tet each is embedded in) or "surface" (tet surface nodes, areas
+    from the tet surface triangles; tet -1)."""
     if points == "skin":
         if asset is None:
             raise ValueError("points='skin' needs the HandAsset (skin_vertices, skin_triangles)")
-        nodes = np.ascontiguousarray(model.tets[model.skin_tet], np.int32)
-        return nodes, np.ascontiguousarray(model.skin_bary, float), vertex_areas(asset.skin_vertices, asset.skin_triangles)
+        tet = np.ascontiguousarray(model.skin_tet, np.int32)
+        nodes = np.ascontiguousarray(model.tets[tet], np.int32)
+        area = vertex_areas(asset.skin_vertices, asset.skin_triangles)
+        return nodes, np.ascontiguousarray(model.skin_bary, float), area, tet
     if points == "surface":
         tris = getattr(asset, "tet_surface_triangles", None) if asset is not None else None
         if tris is None:
@@ -120,7 +124,7 @@ def skin_points(model, asset=None, points="surface"):
         nodes = np.repeat(sn[:, None], 4, axis=1).astype(np.int32)
         bary = np.zeros((len(sn), 4))
         bary[:, 0] = 1.0
-        return nodes, bary, area[sn]
+        return nodes, bary, area[sn], np.full(len(sn), -1, np.int32)
     raise ValueError(f"points={points!r}: expected 'skin' or 'surface'")
 
 
@@ -135,7 +139,7 @@ def build_contact_model(model, scene, asset=None, points="surface", kn=3.0e7, kf
     """
     if kn <= 0 or kf <= 0:
         raise ValueError(f"contact stiffness must be > 0, got kn={kn!r}, kf={kf!r}")
-    nodes, bary, area = skin_points(model, asset, points)
+    nodes, bary, area, tet = skin_points(model, asset, points)
     if object_bodies is None:
         object_bodies = {o.name: model.bone_count + i for i, o in enumerate(scene.dynamic_objects)}
     names, kind, body, pose, com, lo, hi, mu, grid_list = [], [], [], [], [], [], [], [], []
@@ -172,7 +176,7 @@ def build_contact_model(model, scene, asset=None, points="surface", kn=3.0e7, kf
     point_hand, hand_point0 = hand_of_points(model, nodes)
     return ContactModel(
         point_nodes=nodes, point_bary=bary, point_bary_body=body_weights(model, nodes, bary),
-        point_area=area, point_hand=point_hand, hand_point0=hand_point0,
+        point_area=area, point_hand=point_hand, point_tet=tet, hand_point0=hand_point0,
         hand_code=hand_codes(model, len(hand_point0) - 1), object_names=names,
         obj_kind=np.array(kind, np.int32), obj_body=np.array(body, np.int32),
         obj_pose=np.array(pose, float), obj_com=np.array(com, float), obj_lo=np.array(lo, float),

@@ -359,9 +359,10 @@ class ContactSystem:
     def add_all(self, state, model, grad, values):
         """Adds the gradient and Hessian of Eq. 12-13 at state (model dof layout and CSR pattern);
         returns the energy [J]."""
-        e = self.add_gradient(state.node_x, state.body_x, state.body_q, model.body_dof0, grad)
-        self.skipped_entries = self.add_hessian(state.node_x, state.body_x, state.body_q,
-                                                model.body_dof0, model.indptr, model.indices, values)
+        tet = self.model.point_tet[self.point[:self.count]]  # the skin point's tet: its slots
+        e, self.skipped_entries = contact_energy.add_all(
+            *self._args(state.node_x, state.body_x, state.body_q), self.slip, model.body_dof0, grad,
+            model.indptr, model.indices, values, tet, model.tet_slots, model.body_slots)
         return e
 
     def output(self, node_x, body_x, body_q, cap_friction=True):
