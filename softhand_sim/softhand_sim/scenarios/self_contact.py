@@ -173,34 +173,17 @@ def run(solver, state, control, script, seconds, dt=1.0 / 60.0, on_step=None):
     return stats
 
 
-def skin_penetration(smodel, node_x, tets, triangles, within=0.003):
-    """Deepest [m] skin point inside the deformed skin of another segment it may touch, measured
-    without the contact list: for every allowed (point, segment) pair whose nearest skin vertex of
-    that segment (current positions) is within `within` [m], the depth below that vertex's tangent
-    plane ((x_v - x_p) . n_v, n_v the deformed skin's outward vertex normal). Returns
-    (depth, point, segment) of the deepest."""
-    from scipy.spatial import cKDTree
-    from softhand_sim.handmodel.rigid_skin import vertex_normals
-    x = np.einsum("pa,pai->pi", smodel.point_bary, node_x[tets[smodel.point_tet]])
-    normals = vertex_normals(x, triangles)
-    best = (-np.inf, -1, -1)
-    S = smodel.segment_count
-    for t in range(S):
-        own = np.flatnonzero(smodel.point_segment == t)
-        tree = cKDTree(x[own])
-        others = np.flatnonzero((smodel.pair_ok[smodel.point_segment, t] == 1)
-                                & ((smodel.point_exclude >> np.uint64(t)) & np.uint64(1) == 0))
-        dist, idx = tree.query(x[others], distance_upper_bound=within)
-        hit = np.isfinite(dist)
-        if not hit.any():
-            continue
-        v = own[idx[hit]]
-        p = others[hit]
-        depth = np.einsum("ij,ij->i", x[v] - x[p], normals[v])
-        k = int(np.argmax(depth))
-        if depth[k] > best[0]:
-            best = (float(depth[k]), int(p[k]), t)
-    return best
+def skin_penetration(smodel, node_x, tets, triangles, surfaces=None):
+    """Deepest [m] skin point inside another segment it may touch, measured on the deformed skin
+    without the contact list (physics/contact/penetration.py: inside by the winding number of the
+    other segment's closed skin, depth = distance to the nearest skin it may touch). Returns
+    (depth, point, segment, points inside); surfaces: a SegmentSurfaces to reuse."""
+    from softhand_sim.physics.contact.penetration import SegmentSurfaces
+    from softhand_sim.physics.embedded import embedded_positions
+    surfaces = surfaces or SegmentSurfaces(smodel, triangles)
+    x = np.zeros((smodel.point_count, 3))
+    embedded_positions(node_x, tets, smodel.point_tet, smodel.point_bary, x)
+    return surfaces.deepest(x)
 
 
 def runtime_tip_pinch(self_contact: bool, tip_gap: float = 0.002, steps: int = 90, dt: float = 1.0 / 60.0):
@@ -269,14 +252,20 @@ def run_palms_pressed(dt: float = 1.0 / 60.0, height: float = 0.30):
     """PalmsPressed on sim_node's two-hand runtime with self contact, `height` [m] above the
     scene's table (clear of its objects). Per step: {t, gap (tracked), contacts between the hands,
     within one hand, deepest [m] skin point under the other hand's skin, force [N] the left hand
-    pushes the right with, wrist distance [m], smallest signed tet volume [m^3], finite}."""
+    pushes the right with, wrist distance [m], smallest signed tet volume [m^3], finite,
+    penetration [m] (skin_penetration, every 4th step, else None)}."""
     from softhand_sim.params import load_params
     from softhand_sim.runtime import SimRuntime
     from softhand_sim.scenarios.bimanual import _signed_volumes, _table_top
     from softhand_sim.topics import SKIN_OBJECT
 
+    from softhand_sim.physics.contact.penetration import SegmentSurfaces
+    from softhand_sim.physics.hands import union_asset
+
     rt = SimRuntime(load_params("sim_node", overrides={"hands": ["right", "left"], "self_contact": True}))
     script = PalmsPressed([0.0, 0.0, _table_top(rt.scene) + height])
+    smodel = rt.self_contact.system.model
+    surfaces = SegmentSurfaces(smodel, union_asset(rt.hand_assets).skin_triangles)
     rows = []
     for k in range(int(round(script.duration / dt))):
         t = k * dt
@@ -296,5 +285,8 @@ def run_palms_pressed(dt: float = 1.0 / 60.0, height: float = 0.30):
                      "force": float(-push[1]),
                      "wrists": float(np.linalg.norm(out.hands["left"].bone_poses[0, :3] - out.hands["right"].bone_poses[0, :3])),
                      "min_tet_volume": float(_signed_volumes(out.node_x, rt.model.tets).min()),
-                     "finite": bool(np.all(np.isfinite(out.node_x)))})
+                     "finite": bool(np.all(np.isfinite(out.node_x))),
+                     # every 4th step (0.1 s each): the deepest skin point under any skin it may touch
+                     "penetration": (skin_penetration(smodel, out.node_x, rt.model.tets, None, surfaces)[0]
+                                     if k % 4 == 0 else None)})
     return script, rows

@@ -73,6 +73,9 @@ class SelfContactModel:
     point_area: np.ndarray     # (P,) [m^2] half the vertex area (each pair is tested both ways)
     point_segment: np.ndarray  # (P,) i4
     point_exclude: np.ndarray  # (P,) u8 bit s: never touches segment s (rest_clearance rule)
+    point_normal: np.ndarray   # (P,3) outward skin normal at rest (world)
+    nbr_ptr: np.ndarray        # (P+1,) i8 each point's skin neighbours of its own segment:
+    nbr: np.ndarray            # nbr[nbr_ptr[p]:nbr_ptr[p+1]] (i4; the walk to the nearest vertex)
     seg_points: np.ndarray     # (P,) i4 point indices sorted by segment, then by cluster
     seg_clusters: np.ndarray   # (S+1,) i8 range of each segment's clusters
     cluster_start: np.ndarray  # (K+1,) i8 range of each cluster in seg_points
@@ -142,6 +145,18 @@ def _close_segment(vertices, triangles):
     if caps:
         verts.append(np.array(caps))
     return np.concatenate(verts), tri
+
+
+def _segment_neighbours(triangles, point_segment, count):
+    """(ptr (P+1,) i8, nbr (E,) i4): the skin-mesh neighbours of each point within its own segment."""
+    tri = np.asarray(triangles, np.int64)
+    e = np.concatenate([tri[:, [0, 1]], tri[:, [1, 2]], tri[:, [2, 0]]])
+    e = np.concatenate([e, e[:, ::-1]])
+    e = e[point_segment[e[:, 0]] == point_segment[e[:, 1]]]
+    e = np.unique(e, axis=0)  # sorted by the first point
+    ptr = np.zeros(count + 1, np.int64)
+    np.add.at(ptr, e[:, 0] + 1, 1)
+    return np.cumsum(ptr), np.ascontiguousarray(e[:, 1], np.int32)
 
 
 def build_self_contact_model(model, points_rest_tet, points_bary, triangles, point_segment,
@@ -218,9 +233,12 @@ def build_self_contact_model(model, points_rest_tet, points_bary, triangles, poi
         d, _ = grids[s].query((prest[others] - orr[s]) @ Rr[s])
         close = others[d < rest_clearance]
         exclude[close] |= np.uint64(1) << np.uint64(s)
+    nbr_ptr, nbr = _segment_neighbours(tri, pseg, len(prest))
+    from softhand_sim.handmodel.rigid_skin import vertex_normals
     return SelfContactModel(
         point_tet=ptet, point_bary=pbary, point_rest=prest, point_area=area, point_segment=pseg,
-        point_exclude=exclude, seg_points=order,
+        point_exclude=exclude, point_normal=np.ascontiguousarray(vertex_normals(prest, tri), float),
+        nbr_ptr=nbr_ptr, nbr=nbr, seg_points=order,
         seg_clusters=np.array(seg_clusters, np.int64), cluster_start=np.array(cluster_start, np.int64),
         seg_body=segb, seg_rest_R=Rr,
         seg_rest_o=orr, seg_lo=lo, seg_hi=hi, pair_ok=pair_ok,
@@ -276,6 +294,27 @@ def _anchor_from_local(a_local, n_local, s, seg_rest_R, seg_rest_o, point_rest, 
         a_rest = seg_rest_o[s, i] + R[i, 0] * a_local[0] + R[i, 1] * a_local[1] + R[i, 2] * a_local[2]
         o_rest[i] = a_rest - point_rest[vb, i]
         n_rest[i] = R[i, 0] * n_local[0] + R[i, 1] * n_local[1] + R[i, 2] * n_local[2]
+    return vb
+
+
+@njit(cache=True)
+def _walk_to_nearest(vb, xp, p, nbr_ptr, nbr):
+    """The skin vertex of vb's segment nearest the point xp[p] on the deformed skin, by a greedy
+    walk over the skin mesh from vb (the rest field's choice): the field does not deform with
+    its segment, so under strain the vertex nearest at rest can lie millimetres to the side."""
+    best = 0.0
+    for i in range(3):
+        best += (xp[vb, i] - xp[p, i]) ** 2
+    moved = True
+    while moved:
+        moved = False
+        for k in range(nbr_ptr[vb], nbr_ptr[vb + 1]):
+            u = nbr[k]
+            d = 0.0
+            for i in range(3):
+                d += (xp[u, i] - xp[p, i]) ** 2
+            if d < best:
+                best, vb, moved = d, u, True
     return vb
 
 
@@ -336,7 +375,7 @@ def _new_anchor(p_local, s, grid_values, grid_adr, grid_origin, grid_voxel, grid
 @njit(cache=True)
 def collide_kernel(node_x, body_x, body_q, body_com_local, v, tets, tet_q,
                    point_tet, point_bary, point_rest, point_area, point_segment, point_exclude,
-                   seg_points, seg_clusters, cluster_start,
+                   point_normal, nbr_ptr, nbr, seg_points, seg_clusters, cluster_start,
                    seg_body, seg_rest_R, seg_rest_o, seg_lo, seg_hi, pair_ok, grid_values, grid_nearest, grid_adr, grid_origin,
                    grid_voxel, grid_dims, kn, kf, mu, margin, active, xp,
                    prev_count, prev_point, prev_seg, prev_vb, prev_orest, prev_nrest,
@@ -494,6 +533,21 @@ def collide_kernel(node_x, body_x, body_q, body_com_local, v, tets, tet_q,
                         vb = _new_anchor(local, B, grid_values, grid_adr, grid_origin, grid_voxel, grid_dims,
                                          grid_nearest, seg_rest_R, seg_rest_o, point_rest, point_tet, tet_q,
                                          a_local, n_local, o_rest, n_rest, Rt, o, n)
+                        vn = _walk_to_nearest(vb, xp, p, nbr_ptr, nbr)
+                        if vn != vb:  # the deformed skin's nearest vertex: anchored there, its normal
+                            vb = vn
+                            for i in range(3):
+                                o_rest[i] = 0.0
+                                n_rest[i] = point_normal[vb, i]
+                            quat_to_matrix_into(tet_q[point_tet[vb]], Rt)
+                            _matvec(Rt, o_rest, o)
+                            _matvec(Rt, n_rest, n)
+                        # the anchor on the deformed skin's tangent plane at the vertex: the rest
+                        # field's surface point can lie millimetres off it along the normal where
+                        # the tissue has bulged or sunk against its bone
+                        on = o[0] * n[0] + o[1] * n[1] + o[2] * n[2]
+                        for i in range(3):
+                            o[i] -= on * n[i]
                         dn = 0.0
                         for i in range(3):
                             D[i] = xp[vb, i] + o[i] - xp[p, i]
@@ -563,7 +617,7 @@ class SelfContactSystem:
         self.count, self.dropped, self.tested = collide_kernel(
             node_x, body_x, body_q, self.body_com_local, v, self.tets, tet_q,
             m.point_tet, m.point_bary, m.point_rest, m.point_area, m.point_segment, m.point_exclude,
-            m.seg_points, m.seg_clusters, m.cluster_start,
+            m.point_normal, m.nbr_ptr, m.nbr, m.seg_points, m.seg_clusters, m.cluster_start,
             m.seg_body, m.seg_rest_R, m.seg_rest_o, m.seg_lo, m.seg_hi, m.pair_ok, m.grid_values, m.grid_nearest, m.grid_adr,
             m.grid_origin, m.grid_voxel, m.grid_dims, m.kn, m.kf, m.mu, m.margin, self.active, self._xp,
             self.count, prev["point"], prev["seg"], prev["vb"], prev["orest"], prev["nrest"],
