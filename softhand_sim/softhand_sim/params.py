@@ -92,7 +92,7 @@ SIM = {
     "joint_stiffness": P(float, 2.0e5, "N/m", f"skeletal joint stiffness of Eq. 6 ({_PAPER}: 2e5)", positive=True),
     "joint_axis_stiffness": P(float, 20.0, "N*m/rad", "stiffness locking the fixed axes of hinge and universal joints "
                               "(not in the paper: 2e5 N/m x (1 cm)^2)", 0.0),
-    "joint_limit_stiffness": P(float, 2.0, "N*m/rad", "stiffness of the joint-limit penalty; 0 = no limits (not in the paper)",
+    "joint_limit_stiffness": P(float, 200.0, "N*m/rad", "stiffness of the joint-limit penalty; 0 = no limits (not in the paper)",
                                0.0),
     "tracking_kx": P(float, 500.0, "N/m", f"palm linear coupling to the intermediate palm, Eq. 14 ({_PAPER}: 50). 10x the "
                      "paper: the palm carries a held object twice (both ball instances feel gravity); in series with "

@@ -172,7 +172,7 @@ def test_broad_phase_misses_no_candidate_of_the_deformed_fist():
     for k in range(40):  # into the fist: contacts everywhere, the tissue strained
         control.set_bone_targets(model, fist.bone_targets(k / 60.0))
         solver.step(state, control, 1.0 / 60.0)
-    assert sc.count > 200
+    assert sc.count > 100  # (120 with the joint limits at 200 N m/rad, 1,384 at 2)
     fresh = SelfContactSystem(sc.model, model)
     fresh.collide(state.node_x, state.body_x, state.body_q, state.v, model.body_dof0, state.tet_q)
     m = sc.model
