@@ -113,7 +113,7 @@ SIM = {
                       "Newton step as the rest (physics/contact/self_contact.py; about +0.6 ms per coarse step in "
                       "free motion, +3.4 ms in a fist on the benchmark); off: the skins pass through each other"),
     "self_contact_kn": P(float, 3.0e8, "N/m^3", "normal stiffness k_n of skin-skin contact per unit vertex area (Eq. 12 "
-                         "between two skins; 3x contact_kn: the pads of a 5 mm pinch stay within 1 mm)", positive=True),
+                         "between two skins; 10x contact_kn: palms pressed together stay within 1.5 mm, pinched pads within 1 mm)", positive=True),
     "self_contact_kf": P(float, 5.0e7, "N/m^3", "friction stiffness k_f of skin-skin contact per unit vertex area (Eq. 13)",
                          positive=True),
     "self_contact_friction": P(float, 0.5, "-", "Coulomb mu of skin on skin (self contact, physics/contact/self_contact.py)",
