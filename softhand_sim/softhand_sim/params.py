@@ -112,8 +112,11 @@ SIM = {
     "self_contact": P(bool, False, "-", "skin-skin contact of the hands (fingers, palm, hand on hand) in the same "
                       "Newton step as the rest (physics/contact/self_contact.py; about +0.6 ms per coarse step in "
                       "free motion, +3.4 ms in a fist on the benchmark); off: the skins pass through each other"),
-    "self_contact_kn": P(float, 3.0e8, "N/m^3", "normal stiffness k_n of skin-skin contact per unit vertex area (Eq. 12 "
-                         "between two skins; 10x contact_kn: palms pressed together stay within 1.5 mm, pinched pads within 1 mm)", positive=True),
+    "self_contact_kn": P(float, 1.0e8, "N/m^3", "normal stiffness k_n of skin-skin contact within one hand per unit vertex "
+                         "area (Eq. 12 between two skins; 3x contact_kn: pinched pads stay within 1 mm; above 1.2e8 the "
+                         "thumb and index pushed apart around a pinched ball let it go)", positive=True),
+    "self_contact_kn_hands": P(float, 3.0e8, "N/m^3", "normal stiffness of skin-skin contact between the two hands (k_f "
+                               "scaled alike): palms pressed together stay within 1.5 mm", positive=True),
     "self_contact_kf": P(float, 5.0e7, "N/m^3", "friction stiffness k_f of skin-skin contact per unit vertex area (Eq. 13)",
                          positive=True),
     "self_contact_friction": P(float, 0.5, "-", "Coulomb mu of skin on skin (self contact, physics/contact/self_contact.py)",

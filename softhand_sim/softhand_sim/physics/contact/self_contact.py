@@ -85,6 +85,7 @@ class SelfContactModel:
     seg_lo: np.ndarray         # (S,3) [m] bone-frame box of the segment's skin
     seg_hi: np.ndarray
     pair_ok: np.ndarray        # (S,S) u1: the two segments may touch
+    pair_scale: np.ndarray     # (S,S) f8: stiffness of a contact of the pair / (kn, kf) (between hands)
     grid_values: np.ndarray    # concatenated f4 signed distances
     grid_nearest: np.ndarray   # concatenated i4 nearest skin point of the segment
     grid_adr: np.ndarray       # (S,2) i8
@@ -161,11 +162,14 @@ def _segment_neighbours(triangles, point_segment, count):
 
 def build_self_contact_model(model, points_rest_tet, points_bary, triangles, point_segment,
                              segment_body, adjacent, kn=3.0e7, kf=1.5e7, mu=0.5,
-                             rest_clearance=0.0015, voxel=0.001, band=4, margin=0.0005):
+                             rest_clearance=0.0015, voxel=0.001, band=4, margin=0.0005,
+                             segment_hand=None, between_hands=1.0):
     """SelfContactModel of the skin points (embedded in model.tets: tet (P,), bary (P,4)),
     skin triangles (F,3) over those points, point_segment (P,) (segment of each point),
     segment_body (S,) (the model body, a bone, of each segment) and adjacent: pairs of segments
-    that never touch (the skeleton's joints). Units: m, N/m^3."""
+    that never touch (the skeleton's joints). segment_hand (S,): the hand of each segment (None:
+    one hand); a contact between two hands is `between_hands` times as stiff (kn and kf alike).
+    Units: m, N/m^3."""
     t0 = time.perf_counter()
     ptet = np.ascontiguousarray(points_rest_tet, np.int32)
     pbary = np.ascontiguousarray(points_bary, float)
@@ -181,6 +185,10 @@ def build_self_contact_model(model, points_rest_tet, points_bary, triangles, poi
     np.fill_diagonal(pair_ok, 0)
     for a, b in adjacent:
         pair_ok[a, b] = pair_ok[b, a] = 0
+    pair_scale = np.ones((S, S))
+    if segment_hand is not None:
+        hand = np.asarray(segment_hand)
+        pair_scale[hand[:, None] != hand[None, :]] = float(between_hands)
     rest_pose = model.body_rest_pose[segb]
     Rr = np.array([quat_to_matrix(q) for q in rest_pose[:, 3:]])
     orr = rest_pose[:, :3].copy()
@@ -241,7 +249,7 @@ def build_self_contact_model(model, points_rest_tet, points_bary, triangles, poi
         nbr_ptr=nbr_ptr, nbr=nbr, seg_points=order,
         seg_clusters=np.array(seg_clusters, np.int64), cluster_start=np.array(cluster_start, np.int64),
         seg_body=segb, seg_rest_R=Rr,
-        seg_rest_o=orr, seg_lo=lo, seg_hi=hi, pair_ok=pair_ok,
+        seg_rest_o=orr, seg_lo=lo, seg_hi=hi, pair_ok=pair_ok, pair_scale=pair_scale,
         grid_values=np.concatenate(values), grid_nearest=np.concatenate(nearest),
         grid_adr=np.array(adr, np.int64), grid_origin=np.array(origin), grid_voxel=np.array(vox),
         grid_dims=np.array(dims, np.int32), kn=float(kn), kf=float(kf), mu=float(mu),
@@ -319,7 +327,7 @@ def _walk_to_nearest(vb, xp, p, nbr_ptr, nbr):
 
 
 @njit(cache=True)
-def _store(c, p, seg, vb, o_rest, n_rest, o, n, slip, point_tet, point_bary, point_area,
+def _store(c, p, seg, vb, o_rest, n_rest, o, n, slip, point_tet, point_bary, point_area, scale,
            c_point, c_seg, c_vb, c_orest, c_nrest, c_ptet, c_pbary, c_atet, c_abary, c_offset,
            c_normal, c_area, c_slip):
     """Row c of the new contact list: point p against segment seg, anchored at skin vertex vb."""
@@ -332,7 +340,7 @@ def _store(c, p, seg, vb, o_rest, n_rest, o, n, slip, point_tet, point_bary, poi
     c_abary[c] = point_bary[vb]
     c_offset[c] = o
     c_normal[c] = n
-    c_area[c] = point_area[p]
+    c_area[c] = scale * point_area[p]  # the pair's stiffness: kn, kf act through w
     c_slip[c] = slip
 
 
@@ -376,7 +384,7 @@ def _new_anchor(p_local, s, grid_values, grid_adr, grid_origin, grid_voxel, grid
 def collide_kernel(node_x, body_x, body_q, body_com_local, v, tets, tet_q,
                    point_tet, point_bary, point_rest, point_area, point_segment, point_exclude,
                    point_normal, nbr_ptr, nbr, seg_points, seg_clusters, cluster_start,
-                   seg_body, seg_rest_R, seg_rest_o, seg_lo, seg_hi, pair_ok, grid_values, grid_nearest, grid_adr, grid_origin,
+                   seg_body, seg_rest_R, seg_rest_o, seg_lo, seg_hi, pair_ok, pair_scale, grid_values, grid_nearest, grid_adr, grid_origin,
                    grid_voxel, grid_dims, kn, kf, mu, margin, active, xp,
                    prev_count, prev_point, prev_seg, prev_vb, prev_orest, prev_nrest,
                    c_point, c_seg, c_vb, c_orest, c_nrest,
@@ -496,6 +504,7 @@ def collide_kernel(node_x, body_x, body_q, body_com_local, v, tets, tet_q,
             if rel > 0.0:
                 slip = SLIDING
         _store(count, p, s, vb, o_rest, n_rest, o, n, slip, point_tet, point_bary, point_area,
+               pair_scale[point_segment[p], s],
                c_point, c_seg, c_vb, c_orest, c_nrest, c_ptet, c_pbary, c_atet, c_abary, c_offset,
                c_normal, c_area, c_slip)
         count += 1
@@ -564,6 +573,7 @@ def collide_kernel(node_x, body_x, body_q, body_com_local, v, tets, tet_q,
                             o_rest[i] = Rt[0, i] * o[0] + Rt[1, i] * o[1] + Rt[2, i] * o[2]
                         active[p, B] = 1
                         _store(count, p, B, vb, o_rest, n_rest, o, n, STICK, point_tet, point_bary, point_area,
+                               pair_scale[A, B],
                                c_point, c_seg, c_vb, c_orest, c_nrest, c_ptet, c_pbary, c_atet, c_abary,
                                c_offset, c_normal, c_area, c_slip)
                         count += 1
@@ -618,7 +628,7 @@ class SelfContactSystem:
             node_x, body_x, body_q, self.body_com_local, v, self.tets, tet_q,
             m.point_tet, m.point_bary, m.point_rest, m.point_area, m.point_segment, m.point_exclude,
             m.point_normal, m.nbr_ptr, m.nbr, m.seg_points, m.seg_clusters, m.cluster_start,
-            m.seg_body, m.seg_rest_R, m.seg_rest_o, m.seg_lo, m.seg_hi, m.pair_ok, m.grid_values, m.grid_nearest, m.grid_adr,
+            m.seg_body, m.seg_rest_R, m.seg_rest_o, m.seg_lo, m.seg_hi, m.pair_ok, m.pair_scale, m.grid_values, m.grid_nearest, m.grid_adr,
             m.grid_origin, m.grid_voxel, m.grid_dims, m.kn, m.kf, m.mu, m.margin, self.active, self._xp,
             self.count, prev["point"], prev["seg"], prev["vb"], prev["orest"], prev["nrest"],
             new["point"], new["seg"], new["vb"], new["orest"], new["nrest"],
@@ -671,7 +681,8 @@ def build_self_contact_system(model, asset, segments, kn=None, kf=None, mu=None,
     Solver(model, self_contacts=...). segments: (point_segment (V,), segment_body, adjacent pairs) of
     the hand's skin, e.g. handmodel.rigid_skin.skin_segments(asset). kn, kf default to the model's self_contact_kn / self_contact_kf, mu to
     its self_contact_friction, capacity to self_contact_capacity; kwargs go to
-    build_self_contact_model (rest_clearance, voxel, margin).
+    build_self_contact_model (rest_clearance, voxel, margin; with two hands segment_hand and
+    between_hands = self_contact_kn_hands / kn by default).
 
     Two hands: the same build with both hands' skin points (their tets in the one model),
     triangles (the second hand's offset by the first's point count), segments (the second
@@ -684,6 +695,11 @@ def build_self_contact_system(model, asset, segments, kn=None, kf=None, mu=None,
     capacity = int(p["self_contact_capacity"]) if capacity is None else capacity
     kwargs.setdefault("rest_clearance", float(p["self_contact_rest_clearance"]))
     kwargs.setdefault("margin", float(p["self_contact_margin"]))
+    layout = getattr(model, "hands", None)
+    if layout is not None and layout.count > 1 and "segment_hand" not in kwargs:
+        # skin of two hands: their contacts are self_contact_kn_hands stiff
+        kwargs["segment_hand"] = np.searchsorted(layout.bone0, np.asarray(segb), side="right") - 1
+        kwargs.setdefault("between_hands", float(p["self_contact_kn_hands"]) / kn)
     sm = build_self_contact_model(model, model.skin_tet, model.skin_bary, asset.skin_triangles, seg, segb,
                                   adjacent, kn, kf, mu, **kwargs)
     return SelfContactSystem(sm, model, capacity)
