@@ -12,11 +12,14 @@ to each grid node. Each step:
   narrow phase  the skin points of one segment of a pair, moved into the other's bone frame: a
                 bounding-box test, then its field (both ways round: each way carries half of the
                 point's skin area, so the pressure is k_n x depth, as against objects);
-  anchor        a new contact's anchor is the field's closest surface point, kept as the other
-                segment's nearest skin vertex plus a short rest-frame offset and normal that turn
-                with that vertex's tet: the anchor moves with the *deformed* other skin, so both
-                skins flatten and the penetration is measured against the deformed surface
-                (n . D > 0), not against the rigid field;
+  anchor        a new contact's anchor starts at the field's closest surface point, kept as the
+                other segment's nearest skin vertex plus a short rest-frame offset and normal that
+                turn with that vertex's tet; a walk over the skin mesh then moves it to the vertex
+                nearest the point on the *deformed* skin (with that vertex's own normal), and the
+                offset's part along the normal is dropped, so the anchor sits on the deformed
+                skin's tangent plane: both skins flatten and the penetration is measured against
+                the deformed surface (n . D > 0), not against the rigid field (where tissue had
+                bulged, the rest projection left anchors 2 mm off the skin and missed contacts);
   friction      as contact/detection.py: stick while k_f |t| <= mu k_n (n . D), else slide the
                 anchor to the cone, back onto the surface (the field, at rest), then to the cone
                 once more; SLIDING (moving away) drops the friction stiffness along the slip.
@@ -33,12 +36,15 @@ Everything else may touch, across hands too: the two-hands case is the same code
 segments in one list (segment_body points into the model's bodies, adjacency from each hand's
 joints; no pair of segments of different hands is adjacent).
 
-What the method misses (measured in tests/physics/test_self_contact.py and docs): the field of a
-segment does not deform. It decides which points are candidates and where a new anchor sits, so
-a point touching skin that bulged out by more than `margin` is caught late, and anchor
-projections are off by the local tissue strain near the surface; the depth itself is measured
-against the deformed skin through the anchor vertex. Contacts with skin of the same segment
-(a finger folding onto itself) and with adjacent segments are not handled.
+Stiffness: k_n, k_f within a hand; between two hands both times `pair_scale` (the model's
+self_contact_kn_hands / self_contact_kn), carried by the contact's weight w.
+
+What the method misses (measured with physics/contact/penetration.py, which finds skin inside
+another segment's deformed skin without the contact list): the field of a segment does not
+deform. It decides which points are candidates, so a point touching skin that bulged out by more
+than `margin` is caught late; the anchor and the depth follow the deformed skin (above).
+Contacts with skin of the same segment (a finger folding onto itself) and with adjacent segments
+are not handled.
 
 Cost is bounded: at most `capacity` contacts (the rest are counted in `dropped`), one field
 lookup per candidate point.

@@ -61,6 +61,27 @@ def _frame_into(c, node_x, body_x, body_q, contact_nodes, contact_bary, contact_
 
 
 @njit(cache=True)
+def stiffness_into(n0, n1, n2, d0, d1, d2, w, kn, kf, sliding, K):
+    """K (3,3) = w (k_n n n^T + k_f (I - n n^T)) [N/m] for the normal n and the gap D = (d0, d1, d2);
+    sliding (the anchor follows the point during the step, Sect. 3.5): less w k_f along D's
+    tangential part, the slip direction, so the friction force is constant over the step.
+    Shared with the skin-skin term (energies/self_contact.py)."""
+    n = (n0, n1, n2)
+    for i in range(3):
+        for j in range(3):
+            K[i, j] = w * ((kn - kf) * n[i] * n[j] + (kf if i == j else 0.0))
+    if sliding:
+        dn = n0 * d0 + n1 * d1 + n2 * d2
+        t0, t1, t2 = d0 - dn * n0, d1 - dn * n1, d2 - dn * n2
+        tl2 = t0 * t0 + t1 * t1 + t2 * t2
+        if tl2 > 0.0:
+            t = (t0, t1, t2)
+            for i in range(3):
+                for j in range(3):
+                    K[i, j] -= w * kf * t[i] * t[j] / tl2
+
+
+@njit(cache=True)
 def _add_rows(indptr, indices, values, row, nrows, col, ncols, M, scale, transpose):
     """values[(row + i, col + j)] += scale * M[i, j] (M[j, i] if transpose) for i < nrows,
     j < ncols (a 3x3, 3x6 or 6x3 block of node or body dofs); returns the count of nonzero
@@ -133,18 +154,7 @@ def _accumulate(node_x, body_x, body_q, contact_count, contact_nodes, contact_ba
                 grad[o + 5] += l0 * f1 - l1 * f0 + s * (n0 * D1 - n1 * D0)
         if not want_hess:
             continue
-        for i in range(3):
-            for j in range(3):
-                A[i, j] = w * ((kn - kf) * geo[3 + i] * geo[3 + j] + (kf if i == j else 0.0))
-        if contact_slip[c] == 2:  # sliding: the anchor follows the point, no stiffness along the slip
-            fn = f0 * n0 + f1 * n1 + f2 * n2
-            t0, t1, t2 = f0 - fn * n0, f1 - fn * n1, f2 - fn * n2
-            tl2 = t0 * t0 + t1 * t1 + t2 * t2
-            if tl2 > 0.0:
-                t = (t0, t1, t2)
-                for i in range(3):
-                    for j in range(3):
-                        A[i, j] -= w * kf * t[i] * t[j] / tl2
+        stiffness_into(n0, n1, n2, D0, D1, D2, w, kn, kf, contact_slip[c] == 2, A)
         t = contact_tet[c]
         for a in range(4):  # node-node: beta_a beta_b A, from the tet's slots when it has them
             ba = contact_bary[c, a]

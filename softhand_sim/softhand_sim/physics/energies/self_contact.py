@@ -34,6 +34,7 @@ import numpy as np
 from numba import njit
 
 from softhand_sim.physics.embedded import embedded_point
+from softhand_sim.physics.energies.contact import stiffness_into
 
 
 @njit(cache=True)
@@ -91,20 +92,9 @@ def add_gradient(x, tets, count, p_tet, p_bary, a_tet, a_bary, offset, normal, a
 def _stiffness(c, x, tets, p_tet, p_bary, a_tet, a_bary, offset, normal, area, kn, kf, slip, K):
     """w K (3,3) [N/m] of contact c into K; a SLIDING contact loses k_f along its friction force."""
     n = normal[c]
-    w = area[c]
-    for i in range(3):
-        for j in range(3):
-            K[i, j] = w * ((kn - kf) * n[i] * n[j] + (kf if i == j else 0.0))
-    if slip[c] == 2:
-        D = _frame(c, x, tets, p_tet, p_bary, a_tet, a_bary, offset)
-        dn = n[0] * D[0] + n[1] * D[1] + n[2] * D[2]
-        t0, t1, t2 = D[0] - dn * n[0], D[1] - dn * n[1], D[2] - dn * n[2]
-        tl2 = t0 * t0 + t1 * t1 + t2 * t2
-        if tl2 > 0.0:
-            t = (t0, t1, t2)
-            for i in range(3):
-                for j in range(3):
-                    K[i, j] -= w * kf * t[i] * t[j] / tl2
+    sliding = slip[c] == 2
+    D = _frame(c, x, tets, p_tet, p_bary, a_tet, a_bary, offset) if sliding else n
+    stiffness_into(n[0], n[1], n[2], D[0], D[1], D[2], area[c], kn, kf, sliding, K)
 
 
 @njit(cache=True)
