@@ -31,6 +31,7 @@ from numba import njit
 from softhand_sim.physics.energies.assembly import csr_slot
 from softhand_sim.physics.rotations import quat_to_matrix_into
 
+
 @njit(cache=True)
 def _frame_into(c, node_x, body_x, body_q, contact_nodes, contact_bary, contact_body,
                 contact_anchor, contact_normal, R, out):
