@@ -145,10 +145,10 @@ SIM = {
                                    "more iterations than this", 0, 100000),
     "scene_file": P(str, "", "-", "scene file (empty: config/scene.yaml)"),
     "copy_timeout": P(float, 0.5, "s", "an engine copy older than this decouples its object", positive=True),
-    "target_feed_forward": P(bool, False, "-", "move each hand's bone targets to the end of the step with their "
-                             "velocity (at most 40 ms past their stamp), only out of contact: leap_grab's simulated "
-                             "lag 23.5 / 32.7 -> 13.1 / 22.9 ms (phalanx / palm); off (the paper) because a hand "
-                             "coming down on the table hits it ~5 N harder for one step"),
+    "target_feed_forward": P(bool, True, "-", "move each hand's bone targets to the end of the step with their "
+                             "velocity (at most 40 ms past their stamp), only while the skin is 2 cm or more from "
+                             "every object (target_lead.py): leap_grab's simulated lag 23.5 / 32.3 -> 13.2 / 22.4 "
+                             "ms (phalanx / palm); false: the paper's targets as they came"),
     "extrapolate": P(bool, False, "-", "extrapolate engine copies with constant acceleration (Sect. 3.7): off, measured "
                      "to throw a held ball once copies arrive >= 50 ms late (a loaded machine); plain copies held it"),
     "skin_marker_rate": P(float, 10.0, "Hz", "rate of /hand/{side}/skin_marker and /hand/contact_markers",

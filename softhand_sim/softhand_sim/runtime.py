@@ -410,7 +410,7 @@ class SimRuntime:
             if self.leads[h].enabled:
                 objects = out.contacts["objects"] != SKIN_OBJECT  # as the tracking node's feedback gate
                 self.leads[h].on_contacts(int(np.count_nonzero(objects & (out.contacts["hand"] == HAND_CODE[side]))),
-                                          t + dt)
+                                          t + dt, float(self.contacts.near[h]))
         t5 = clock()
         # the solver's stages cover its step but for its bookkeeping (a few us): that goes to none
         out.stages = {"targets": 1e3 * (t1 - t0), **{name: getattr(stats, f) for name, f in STAGE_FIELDS},

@@ -50,6 +50,53 @@ def test_palm_on_ball_gives_100_contacts(asset):
     assert set(system.object[:system.count]) == {cm.object_names.index("ball")}
 
 
+def _true_distance(system, scene):
+    """Smallest distance [m] of the skin points (both weightings) to the scene's objects (spheres,
+    boxes and upright cylinders, all unrotated in config/scene.yaml) and the ground, from the
+    points the last collide computed."""
+    best = np.inf
+    for x in (system._point_x, system._point_x_body):
+        best = min(best, x[:, 2].min() - scene.ground_height)
+        for o in scene.objects:
+            assert np.allclose(o.pose[3:], [0, 0, 0, 1])
+            rel = x - o.pose[:3]
+            if o.shape == "sphere":
+                d = np.linalg.norm(rel, axis=1) - o.dims["radius"]
+            elif o.shape == "box":
+                d = np.linalg.norm(np.maximum(np.abs(rel) - 0.5 * np.asarray(o.dims["size"]), 0.0), axis=1)
+            else:
+                assert o.shape == "cylinder"
+                radial = np.maximum(np.linalg.norm(rel[:, :2], axis=1) - o.dims["radius"], 0.0)
+                axial = np.maximum(np.abs(rel[:, 2]) - 0.5 * o.dims["length"], 0.0)
+                d = np.hypot(radial, axial)
+            best = min(best, d.min())
+    return best
+
+
+def test_near_is_a_tight_lower_bound_of_the_distance_to_the_objects(asset):
+    """ContactSystem.near (the target lead's gate): the hand above the scene's ball at 3, 10 and
+    30 mm is reported within 2 mm of its true distance (the nearest skin point, analytically); 0
+    in contact, inf beyond NEAR_CAP."""
+    scene = load_scene()
+    model = build_model(asset, HAND_PARAMS, objects=scene.dynamic_objects)
+    system = contact.ContactSystem(build_contact_model(model, scene, asset, points="skin"))
+    for gap in (-0.006, 0.003, 0.010, 0.030, 0.120):
+        state = model.initial_state()
+        offset = scene.object("ball").pose[:3] - ball_under_palm(asset, -gap)
+        state.node_x += offset
+        for b in range(model.bone_count):
+            state.set_body_pose(model, b, np.r_[state.body_pose[b, :3] + offset, state.body_pose[b, 3:]])
+        system.reset()
+        system.collide(state.node_x, state.body_x, state.body_q)
+        true = _true_distance(system, scene)
+        if gap < 0:
+            assert system.count > 0 and system.near[0] == 0.0
+        elif true >= contact.NEAR_CAP:
+            assert system.near[0] == np.inf
+        else:
+            assert abs(system.near[0] - true) <= 0.002, (gap, true, system.near[0])
+
+
 def test_squeeze_with_tracked_hand_3cm_inside_ball_stays_bounded(asset):
     """The tracked hand moves 3 cm down into a fixed ball while the fingers close (0.5 rad per
     joint): elastic tracking absorbs the difference (Fig. 6). The contacts carry the palm's

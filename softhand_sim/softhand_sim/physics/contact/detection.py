@@ -42,6 +42,7 @@ from softhand_sim.physics.contact.contact_model import KIND_GRID, KIND_HALFSPACE
 
 STICK, SLIP, SLIDING = 0, 1, 2  # SLIDING: slipping and moving away from the anchor
 _CONE_SLACK = 1e-9  # relative slack when clamping onto the friction cone
+NEAR_CAP = 0.03  # [m] ContactSystem.near: distances beyond this are not measured (inf)
 
 
 @njit(cache=True)
@@ -126,14 +127,25 @@ def collide_kernel(node_x, body_x, body_q, v, body_dof0, point_nodes, point_bary
                    obj_kind, obj_body, obj_pose, obj_com, obj_lo, obj_hi, obj_mu,
                    grid_values, grid_adr, grid_origin, grid_voxel, grid_dims, ground_h, kn, kf,
                    anchor, normal, active, slip, obj_active, point_x_static, point_x_body,
-                   c_point, c_object, c_nodes, c_bary, c_body, c_anchor, c_normal, c_area, c_mu, c_slip):
+                   c_point, c_object, c_nodes, c_bary, c_body, c_anchor, c_normal, c_area, c_mu, c_slip,
+                   near, near_cap):
     """One detection pass; returns (active contact count, contacts dropped for lack of capacity).
 
     Hands: the points of hand h are hand_point0[h]:hand_point0[h+1]; a hand with hand_enabled[h]
     == 0 (not in the simulation yet) has no contact. The broad phase is per hand (each hand's
     bounding box against each object), so a second hand far away costs a one-hand pass.
-    obj_active (O, H): active contacts per object and hand."""
+    obj_active (O, H): active contacts per object and hand.
+    near (H,): written with each hand's skin-to-object distance [m] where it is below near_cap
+    (else inf; 0 while the hand touches an object, at this pass or the last, and then not measured:
+    in contact it costs nothing): the lowest skin point's height over the ground, else the SDF
+    (for points outside an object's box, its field around the box, at least the distance to the
+    box; beyond the field's padding an estimate)."""
     H = hand_point0.shape[0] - 1
+    for h in range(H):  # a hand that touched an object at the last pass is near: nothing to measure
+        near[h] = np.inf
+        for o in range(obj_kind.shape[0]):
+            if obj_active[o, h] > 0:
+                near[h] = 0.0
     lo = np.full((H, 3), np.inf)   # bounding box of each hand's skin points, for the broad phase
     hi = np.full((H, 3), -np.inf)
     for h in range(H):
@@ -188,37 +200,51 @@ def collide_kernel(node_x, body_x, body_q, v, body_dof0, point_nodes, point_bary
         for h in range(H):
             if hand_enabled[h] == 0:
                 continue
-            if obj_active[o, h] == 0:  # nothing to release: skip objects away from the hand's box
-                if kind == KIND_HALFSPACE:
-                    if lo[h, 2] >= ground_h:
-                        continue
-                else:
-                    r = np.sqrt(radius2)
-                    if (lo[h, 0] > centre_w[0] + r or hi[h, 0] < centre_w[0] - r or lo[h, 1] > centre_w[1] + r
-                            or hi[h, 1] < centre_w[1] - r or lo[h, 2] > centre_w[2] + r
-                            or hi[h, 2] < centre_w[2] - r):
-                        continue
+            if kind == KIND_HALFSPACE:
+                gap = lo[h, 2] - ground_h  # the lowest skin point's height: exact
+            else:  # the hand's box to the object's bounding sphere: a lower bound
+                e0 = max(lo[h, 0] - centre_w[0], 0.0, centre_w[0] - hi[h, 0])
+                e1 = max(lo[h, 1] - centre_w[1], 0.0, centre_w[1] - hi[h, 1])
+                e2 = max(lo[h, 2] - centre_w[2], 0.0, centre_w[2] - hi[h, 2])
+                gap = np.sqrt(e0 * e0 + e1 * e1 + e2 * e2) - np.sqrt(radius2)
+            cap = min(near[h], near_cap)  # distances at or beyond this change nothing
+            if gap >= 0.0 and obj_active[o, h] == 0:  # nothing to release
+                if kind == KIND_HALFSPACE or gap >= cap:  # skip objects away from the hand
+                    if gap < cap:
+                        near[h] = gap
+                    continue
             obj_active[o, h] = 0
+            reach = np.sqrt(radius2) + cap
             for p in range(hand_point0[h], hand_point0[h + 1]):
                 was = active[o, p] != 0
                 if kind == KIND_GRID and not was:  # broad phase: bounding sphere, then local box
                     dx = point_x[p, 0] - centre_w[0]
                     dy = point_x[p, 1] - centre_w[1]
                     dz = point_x[p, 2] - centre_w[2]
-                    if dx * dx + dy * dy + dz * dz > radius2:
+                    if dx * dx + dy * dy + dz * dz > reach * reach:
                         continue
                 for i in range(3):
                     local[i] = (R[0, i] * (point_x[p, 0] - origin[0]) + R[1, i] * (point_x[p, 1] - origin[1])
                                 + R[2, i] * (point_x[p, 2] - origin[2]))
-                if kind == KIND_GRID and not was:
-                    if (local[0] < obj_lo[o, 0] or local[1] < obj_lo[o, 1] or local[2] < obj_lo[o, 2]
-                            or local[0] > obj_hi[o, 0] or local[1] > obj_hi[o, 1] or local[2] > obj_hi[o, 2]):
+                if kind == KIND_GRID and not was:  # outside the object's box: no contact
+                    e0 = max(obj_lo[o, 0] - local[0], 0.0, local[0] - obj_hi[o, 0])
+                    e1 = max(obj_lo[o, 1] - local[1], 0.0, local[1] - obj_hi[o, 1])
+                    e2 = max(obj_lo[o, 2] - local[2], 0.0, local[2] - obj_hi[o, 2])
+                    if e0 > 0.0 or e1 > 0.0 or e2 > 0.0:
+                        e = np.sqrt(e0 * e0 + e1 * e1 + e2 * e2)  # bounds the distance from below
+                        if e < min(near[h], near_cap):  # the field (padded around the box) decides
+                            d = max(e, _distance(kind, adr, vals, gorg, gvox, gdim, ground_h, local))
+                            if d < near_cap:
+                                near[h] = min(near[h], d)
                         continue
                 d = _distance(kind, adr, vals, gorg, gvox, gdim, ground_h, local)
                 if d >= 0.0:
+                    if d < near_cap:
+                        near[h] = min(near[h], d)
                     active[o, p] = 0
                     slip[o, p] = 0
                     continue
+                near[h] = 0.0
                 if not was:
                     _project(kind, adr, vals, gorg, gvox, gdim, ground_h, local, a_new, n_new)
                     anchor[o, p] = a_new
@@ -286,6 +312,10 @@ class ContactSystem:
         self._point_x_body = np.zeros((P, 3))
         self._obj_active = np.zeros((O, cmodel.hand_count), np.int64)  # active contacts per object and hand
         self.hand_enabled = np.ones(cmodel.hand_count, np.uint8)  # 0: the hand has no contact (not entered)
+        # per hand, a lower bound of its skin's distance to the objects after the last collide [m]
+        # (inf beyond near_cap; 0 in contact): the target lead's gate (target_lead.py)
+        self.near = np.full(cmodel.hand_count, np.inf)
+        self.near_cap = NEAR_CAP
         C = int(capacity)
         self.point = np.zeros(C, np.int32)
         self.object = np.zeros(C, np.int32)
@@ -334,7 +364,7 @@ class ContactSystem:
             m.kn, m.kf, self.anchor, self.normal, self.active, self.slip_state, self._obj_active,
             self._point_x, self._point_x_body,
             self.point, self.object, self.nodes, self.bary, self.body, self.anchor_list,
-            self.normal_list, self.area, self.mu, self.slip)
+            self.normal_list, self.area, self.mu, self.slip, self.near, self.near_cap)
         self.collision_ms = 1e3 * (time.perf_counter() - t0)
         return self.count
 
