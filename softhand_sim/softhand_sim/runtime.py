@@ -362,8 +362,11 @@ class SimRuntime:
             self.control.set_object_targets(self.model, self.object_targets, kx=self.object_kx,
                                             ktheta=self.object_ktheta)
 
-    def step(self, dt, t):
-        """Advance by dt from time t; returns StepOutput, or None while no bone target arrived."""
+    def step(self, dt, t, on_bones=None):
+        """Advance by dt from time t; returns StepOutput, or None while no bone target arrived.
+        on_bones(t_state, [(side, bone_poses (B, 7))] of the hands that entered): called as soon
+        as the state is final, before the skin and the contact rows are computed (sim_node
+        publishes the bones there: the latency a user sees)."""
         if not self.placed:
             return None
         nb = self.model.bone_count
@@ -389,6 +392,11 @@ class SimRuntime:
         else:
             self.good_state = self.state.copy()
         t3 = clock()
+        if on_bones is not None:  # its time is the caller's, in no stage
+            layout = self.model.hands
+            on_bones(t + dt, [(side, self.state.body_pose[layout.bones(h)].copy())
+                              for h, side in enumerate(self.hands) if self.hand_placed[h]])
+        t3b = clock()
         self.solver.skin_positions(self.state, self._skin)
         t4 = clock()
         body_v = self.state.body_v[nb:]
@@ -414,7 +422,7 @@ class SimRuntime:
         t5 = clock()
         # the solver's stages cover its step but for its bookkeeping (a few us): that goes to none
         out.stages = {"targets": 1e3 * (t1 - t0), **{name: getattr(stats, f) for name, f in STAGE_FIELDS},
-                      "guard": 1e3 * (t3 - t2), "skin": 1e3 * (t4 - t3), "output": 1e3 * (t5 - t4)}
+                      "guard": 1e3 * (t3 - t2), "skin": 1e3 * (t4 - t3b), "output": 1e3 * (t5 - t4)}
         self.last_step_stamp = out.t
         return out
 
