@@ -102,8 +102,8 @@ class TargetLead:
         self.poses, self.stamp = poses, stamp
 
     def on_contacts(self, count: int, t: float, near: float = np.inf) -> None:
-        """The hand's active contacts after the step that ended at t [s], and a lower bound of
-        its skin's distance to the objects [m] (ContactSystem.near)."""
+        """The hand's active contacts after the step that ended at t [s], and its skin's
+        distance to the objects [m] (ContactSystem.near; inf: farther than it measures)."""
         if count > 0 or near < NEAR_GATE:
             self.last_contact_t = t
 

@@ -73,7 +73,7 @@ def _true_distance(system, scene):
     return best
 
 
-def test_near_is_a_tight_lower_bound_of_the_distance_to_the_objects(asset):
+def test_near_is_the_distance_to_the_objects(asset):
     """ContactSystem.near (the target lead's gate): the hand above the scene's ball at 3, 10 and
     30 mm is reported within 2 mm of its true distance (the nearest skin point, analytically); 0
     in contact, inf beyond NEAR_CAP."""

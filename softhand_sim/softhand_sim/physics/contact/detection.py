@@ -312,8 +312,9 @@ class ContactSystem:
         self._point_x_body = np.zeros((P, 3))
         self._obj_active = np.zeros((O, cmodel.hand_count), np.int64)  # active contacts per object and hand
         self.hand_enabled = np.ones(cmodel.hand_count, np.uint8)  # 0: the hand has no contact (not entered)
-        # per hand, a lower bound of its skin's distance to the objects after the last collide [m]
-        # (inf beyond near_cap; 0 in contact): the target lead's gate (target_lead.py)
+        # per hand, its skin's distance to the objects at the last collide [m] (inf beyond
+        # near_cap; 0 in contact; collide_kernel says how it is measured): the target lead's gate
+        # (target_lead.py)
         self.near = np.full(cmodel.hand_count, np.inf)
         self.near_cap = NEAR_CAP
         C = int(capacity)
