@@ -14,7 +14,10 @@ lead is scaled by v^2 / (v^2 + NOISE_GAIN noise^2): a hand moving well above its
 gets the whole lead, a still or noisy one little. Offline, the fitted hands of the synthetic bags
 (1.5 mm of noise per joint) had their fingertip error's median rise from 4.73 / 4.85 mm without the
 lead to 5.83 / 5.71 mm with it unscaled, and 4.88 / 4.95 mm scaled; on the Leap recordings the
-scaling costs ~1 ms of the phalanxes' lag and lowers their error.
+scaling costs ~1 ms of the phalanxes' lag and lowers their error. No target is moved further than
+MAX_SHIFT or turned further than MAX_TURN: after a jump of the tracked hand the intermediate bones
+race to it at metres per second, and led they would overshoot by centimetres (the caps never bind
+on the Leap recordings: their lag and error are the same with and without them).
 
 In contact the paper's behaviour is kept: the springs pull toward the targets as they came, not
 toward where the hand would be if nothing stopped it (a moved target would press harder into
@@ -33,6 +36,8 @@ import numpy as np
 from softhand_sim.physics.rotations import integrate_rotation, quat_conj, quat_log, quat_mul
 
 MAX_LEAD = 0.04        # [s] targets are never moved further than this past their stamp
+MAX_SHIFT = 0.02       # [m] no target is moved further than this (1 m/s for 20 ms) ...
+MAX_TURN = 0.6         # [rad] ... nor turned further (30 rad/s for 20 ms)
 MAX_GAP = 0.05         # [s] two targets further apart give no velocity (a gap, a restart)
 VELOCITY_WINDOW = 0.02  # [s] the velocity is the change over (at least) this long
 SMOOTHING = 0.02       # [s] time constant of the low-pass filter on the targets' velocity
@@ -129,4 +134,12 @@ class TargetLead:
             # the floor keeps a still bone's ratio of two round-off-sized numbers out (its lead is nil)
             g = speed2 / (speed2 + NOISE_GAIN * self.noise2 + STILL2)
             vel = vel * np.repeat(g, 3, axis=1)
+        # a jump of the tracked hand (a tracker re-acquiring it, a replay restarting) is followed
+        # by the intermediate bones at metres per second: led, it would overshoot by centimetres
+        shift = self.lead * np.linalg.norm(vel[:, :3], axis=1)
+        turn = self.lead * np.linalg.norm(vel[:, 3:], axis=1)
+        if shift.max() > MAX_SHIFT or turn.max() > MAX_TURN:
+            vel = vel.copy()
+            vel[:, :3] *= np.minimum(1.0, MAX_SHIFT / np.maximum(shift, 1e-300))[:, None]
+            vel[:, 3:] *= np.minimum(1.0, MAX_TURN / np.maximum(turn, 1e-300))[:, None]
         return extrapolate(self.poses, vel, self.lead)

@@ -3,8 +3,8 @@ contact (sim_node parameter target_feed_forward), and its effect on a real recor
 import numpy as np
 import pytest
 
-from softhand_sim.target_lead import (CONTACT_HOLD, MAX_LEAD, NEAR_GATE, RAMP, TargetLead, extrapolate,
-                                      pose_velocity)
+from softhand_sim.target_lead import (CONTACT_HOLD, MAX_LEAD, MAX_SHIFT, NEAR_GATE, RAMP, TargetLead,
+                                      extrapolate, pose_velocity)
 
 
 def _axis_angle_quat(axis, angle):
@@ -141,6 +141,20 @@ def test_a_moving_hand_keeps_its_lead_through_small_noise():
             led.append(np.linalg.norm(lead.targets_at(t + 0.018)[:, :3] - want, axis=1))
             held.append(np.linalg.norm(p[:, :3] - want, axis=1))
     assert np.mean(led) < 0.25 * np.mean(held)
+
+
+def test_a_jump_of_the_targets_is_not_led_further_than_max_shift():
+    """Targets that race 10 cm in 8 ms (the intermediate bones catching up with a tracker jump):
+    the led targets stay within MAX_SHIFT of the targets as they came."""
+    lead = TargetLead()
+    for k in range(20):
+        lead.on_target(_motion(0.004 * k)[0], 0.004 * k)
+    for k in range(20, 23):
+        p = _motion(0.004 * k)[0]
+        p[:, 0] += 0.05 * (k - 19)
+        lead.on_target(p, 0.004 * k)
+        got = lead.targets_at(0.004 * k + 0.018)
+        assert np.linalg.norm(got[:, :3] - p[:, :3], axis=1).max() <= MAX_SHIFT + 1e-12
 
 
 @pytest.mark.slow
