@@ -392,21 +392,19 @@ class SimRuntime:
         else:
             self.good_state = self.state.copy()
         t3 = clock()
+        s = self.state
+        bone_poses = [s.hand_bone_pose(self.model, h).copy() for h in range(len(self.hands))]
         if on_bones is not None:  # its time is the caller's, in no stage
-            layout = self.model.hands
-            on_bones(t + dt, [(side, self.state.body_pose[layout.bones(h)].copy())
-                              for h, side in enumerate(self.hands) if self.hand_placed[h]])
+            on_bones(t + dt, [(side, bone_poses[h]) for h, side in enumerate(self.hands) if self.hand_placed[h]])
         t3b = clock()
         self.solver.skin_positions(self.state, self._skin)
         t4 = clock()
         body_v = self.state.body_v[nb:]
         accels = (body_v - self._prev_body_v) / dt
         self._prev_body_v = body_v.copy()
-        s = self.state
         layout = self.model.hands
         hands = {side: HandOutput(side=side, code=HAND_CODE[side], entered=self.hand_placed[h],
-                                  bone_poses=s.body_pose[layout.bones(h)].copy(),
-                                  skin_vertices=self._skin[layout.skin(h)])
+                                  bone_poses=bone_poses[h], skin_vertices=self._skin[layout.skin(h)])
                  for h, side in enumerate(self.hands)}
         first = hands[self.hands[0]]
         out = StepOutput(

@@ -135,8 +135,6 @@ class SimNode(Node):
         self.target_delay_ms = StepStats(window=DIAG_WINDOW)  # [ms] receipt - stamp, every hand's targets
         from softhand_sim.physics.hands import HAND_CODE
         self.hand_topics = [HandTopics(self, side, HAND_CODE[side]) for side in self.runtime.hands]
-        self.hand_pubs = {hand.side: hand.bones for hand in self.hand_topics}
-        self._bones_s = [0.0, 0.0]
         for hand in self.hand_topics:
             hand.new_model(self.runtime)
             # 250 Hz of PoseArrays, taken as CDR bytes and read with numpy (msgs.pose_array_from_cdr)
@@ -255,7 +253,7 @@ class SimNode(Node):
         rest = []
         for hand in self.hand_topics:
             ho = out.hands[hand.side]
-            if not ho.entered:
+            if not ho.entered:  # no target yet: this hand publishes nothing
                 continue
             if not hand.mesh_sent:  # once per hand model, latched
                 hand.mesh_sent = True
@@ -296,12 +294,12 @@ class SimNode(Node):
         and every other message of the tick (2-4 ms of the tick's p99 in the demo)."""
         tb = time.perf_counter()
         stamp = rm.stamp_from_seconds(t_state)  # as the tick's other messages: the same stamp
-        msgs = [(self.hand_pubs[side], poses, rm.pose_array_cdr(poses, rm.stamp_to_ns(stamp)))
-                for side, poses in hands]
+        msgs = [rm.pose_array_cdr(poses, rm.stamp_to_ns(stamp)) for _, poses in hands]
         tp = time.perf_counter()
-        for pub, _, msg in msgs:
-            pub.publish(msg)
-        for (pub, poses, _), (side, _) in zip(msgs, hands):
+        topics = {hand.side: hand for hand in self.hand_topics}
+        for (side, _), msg in zip(hands, msgs):
+            topics[side].bones.publish(msg)
+        for side, poses in hands:
             self.tf.publish_bones(poses, stamp, side)  # TF: the same poses and stamp as the bones
         self._bones_s = [tp - tb, time.perf_counter() - tp]
 

@@ -38,6 +38,7 @@ from softhand_sim.physics.rotations import integrate_rotation, quat_conj, quat_l
 MAX_LEAD = 0.04        # [s] targets are never moved further than this past their stamp
 MAX_SHIFT = 0.02       # [m] no target is moved further than this (1 m/s for 20 ms) ...
 MAX_TURN = 0.6         # [rad] ... nor turned further (30 rad/s for 20 ms)
+MAX_REACH = np.array([MAX_SHIFT, MAX_TURN])
 MAX_GAP = 0.05         # [s] two targets further apart give no velocity (a gap, a restart)
 VELOCITY_WINDOW = 0.02  # [s] the velocity is the change over (at least) this long
 SMOOTHING = 0.02       # [s] time constant of the low-pass filter on the targets' velocity
@@ -55,6 +56,11 @@ def pose_velocity(prev, cur, dt):
     poses prev -> cur (n, 7) over dt [s]."""
     w = np.array([quat_log(quat_mul(c[3:].copy(), quat_conj(p[3:].copy()))) for p, c in zip(prev, cur)])
     return np.hstack([(cur[:, :3] - prev[:, :3]) / dt, w.reshape(-1, 3) / dt])
+
+
+def _squared_norms(vel):
+    """(n, 2) squared norms of the linear and the angular part of each row of vel (n, 6)."""
+    return np.sum(vel.reshape(-1, 2, 3) ** 2, axis=2)
 
 
 def extrapolate(poses, vel, tau):
@@ -97,8 +103,7 @@ class TargetLead:
                 raw = pose_velocity(p0, poses, stamp - t0)
                 alpha = 1.0 - np.exp(-(stamp - self.stamp) / SMOOTHING)
                 if self.vel is not None:
-                    dev = raw - self.vel
-                    dev2 = np.stack([np.sum(dev[:, :3] ** 2, axis=1), np.sum(dev[:, 3:] ** 2, axis=1)], axis=1)
+                    dev2 = _squared_norms(raw - self.vel)
                     beta = 1.0 - np.exp(-(stamp - self.stamp) / NOISE_TIME)
                     self.noise2 = dev2 if self.noise2 is None else self.noise2 + beta * (dev2 - self.noise2)
                 self.vel = raw if self.vel is None else self.vel + alpha * (raw - self.vel)
@@ -130,16 +135,12 @@ class TargetLead:
             return self.poses
         vel = self.vel
         if self.noise2 is not None and NOISE_GAIN > 0.0:
-            speed2 = np.stack([np.sum(vel[:, :3] ** 2, axis=1), np.sum(vel[:, 3:] ** 2, axis=1)], axis=1)
+            speed2 = _squared_norms(vel)
             # the floor keeps a still bone's ratio of two round-off-sized numbers out (its lead is nil)
-            g = speed2 / (speed2 + NOISE_GAIN * self.noise2 + STILL2)
-            vel = vel * np.repeat(g, 3, axis=1)
+            vel = vel * np.repeat(speed2 / (speed2 + NOISE_GAIN * self.noise2 + STILL2), 3, axis=1)
         # a jump of the tracked hand (a tracker re-acquiring it, a replay restarting) is followed
         # by the intermediate bones at metres per second: led, it would overshoot by centimetres
-        shift = self.lead * np.linalg.norm(vel[:, :3], axis=1)
-        turn = self.lead * np.linalg.norm(vel[:, 3:], axis=1)
-        if shift.max() > MAX_SHIFT or turn.max() > MAX_TURN:
-            vel = vel.copy()
-            vel[:, :3] *= np.minimum(1.0, MAX_SHIFT / np.maximum(shift, 1e-300))[:, None]
-            vel[:, 3:] *= np.minimum(1.0, MAX_TURN / np.maximum(turn, 1e-300))[:, None]
+        reach = self.lead * np.sqrt(_squared_norms(vel))  # (n, 2): shift [m], turn [rad]
+        if np.any(reach > MAX_REACH):
+            vel = vel * np.repeat(np.minimum(1.0, MAX_REACH / np.maximum(reach, 1e-300)), 3, axis=1)
         return extrapolate(self.poses, vel, self.lead)

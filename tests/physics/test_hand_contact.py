@@ -8,7 +8,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from softhand_sim.physics.contact import detection as contact
+from softhand_sim.physics.contact import detection as contact, sdf
 from softhand_sim.physics.contact.contact_model import build_contact_model
 from softhand_sim.scenarios.contact import ball_object, ball_under_palm, flexed_targets
 from softhand_sim.physics.model import build_model
@@ -51,25 +51,18 @@ def test_palm_on_ball_gives_100_contacts(asset):
 
 
 def _true_distance(system, scene):
-    """Smallest distance [m] of the skin points (both weightings) to the scene's objects (spheres,
-    boxes and upright cylinders, all unrotated in config/scene.yaml) and the ground, from the
-    points the last collide computed."""
+    """Smallest distance [m] of the skin points (both weightings) to the scene's objects (the exact
+    primitive distances of sdf.py, not the grids the kernel reads; all unrotated in
+    config/scene.yaml) and the ground, from the points the last collide computed."""
+    exact = {"sphere": lambda p, d: sdf.sphere_distance(p, d["radius"]),
+             "box": lambda p, d: sdf.box_distance(p, d["size"]),
+             "cylinder": lambda p, d: sdf.cylinder_distance(p, d["radius"], d["length"])}
     best = np.inf
     for x in (system._point_x, system._point_x_body):
         best = min(best, x[:, 2].min() - scene.ground_height)
         for o in scene.objects:
             assert np.allclose(o.pose[3:], [0, 0, 0, 1])
-            rel = x - o.pose[:3]
-            if o.shape == "sphere":
-                d = np.linalg.norm(rel, axis=1) - o.dims["radius"]
-            elif o.shape == "box":
-                d = np.linalg.norm(np.maximum(np.abs(rel) - 0.5 * np.asarray(o.dims["size"]), 0.0), axis=1)
-            else:
-                assert o.shape == "cylinder"
-                radial = np.maximum(np.linalg.norm(rel[:, :2], axis=1) - o.dims["radius"], 0.0)
-                axial = np.maximum(np.abs(rel[:, 2]) - 0.5 * o.dims["length"], 0.0)
-                d = np.hypot(radial, axial)
-            best = min(best, d.min())
+            best = min(best, exact[o.shape](x - o.pose[:3], o.dims).min())
     return best
 
 

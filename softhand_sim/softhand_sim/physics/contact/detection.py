@@ -46,6 +46,15 @@ NEAR_CAP = 0.03  # [m] ContactSystem.near: distances beyond this are not measure
 
 
 @njit(cache=True)
+def _box_gap(lo, hi, x0, x1, x2):
+    """Distance [m] from the point (x0, x1, x2) to the box [lo, hi] (0 inside)."""
+    e0 = max(lo[0] - x0, 0.0, x0 - hi[0])
+    e1 = max(lo[1] - x1, 0.0, x1 - hi[1])
+    e2 = max(lo[2] - x2, 0.0, x2 - hi[2])
+    return np.sqrt(e0 * e0 + e1 * e1 + e2 * e2)
+
+
+@njit(cache=True)
 def _distance(kind, adr, values, origin, voxel, dims, ground_h, p):
     if kind == KIND_HALFSPACE:
         return p[2] - ground_h
@@ -191,6 +200,7 @@ def collide_kernel(node_x, body_x, body_q, v, body_dof0, point_nodes, point_bary
         centre = 0.5 * (obj_lo[o] + obj_hi[o])
         half = 0.5 * (obj_hi[o] - obj_lo[o])
         radius2 = half[0] * half[0] + half[1] * half[1] + half[2] * half[2]
+        r = np.sqrt(radius2)
         centre_w = origin + R @ centre
         mu = obj_mu[o]
         # dynamic objects see the skin point through the nodes the Hessian pattern couples to
@@ -203,10 +213,7 @@ def collide_kernel(node_x, body_x, body_q, v, body_dof0, point_nodes, point_bary
             if kind == KIND_HALFSPACE:
                 gap = lo[h, 2] - ground_h  # the lowest skin point's height: exact
             else:  # the hand's box to the object's bounding sphere: a lower bound
-                e0 = max(lo[h, 0] - centre_w[0], 0.0, centre_w[0] - hi[h, 0])
-                e1 = max(lo[h, 1] - centre_w[1], 0.0, centre_w[1] - hi[h, 1])
-                e2 = max(lo[h, 2] - centre_w[2], 0.0, centre_w[2] - hi[h, 2])
-                gap = np.sqrt(e0 * e0 + e1 * e1 + e2 * e2) - np.sqrt(radius2)
+                gap = _box_gap(lo[h], hi[h], centre_w[0], centre_w[1], centre_w[2]) - r
             cap = min(near[h], near_cap)  # distances at or beyond this change nothing
             if gap >= 0.0 and obj_active[o, h] == 0:  # nothing to release
                 if kind == KIND_HALFSPACE or gap >= cap:  # skip objects away from the hand
@@ -214,7 +221,7 @@ def collide_kernel(node_x, body_x, body_q, v, body_dof0, point_nodes, point_bary
                         near[h] = gap
                     continue
             obj_active[o, h] = 0
-            reach = np.sqrt(radius2) + cap
+            reach = r + cap
             for p in range(hand_point0[h], hand_point0[h + 1]):
                 was = active[o, p] != 0
                 if kind == KIND_GRID and not was:  # broad phase: bounding sphere, then local box
@@ -227,11 +234,8 @@ def collide_kernel(node_x, body_x, body_q, v, body_dof0, point_nodes, point_bary
                     local[i] = (R[0, i] * (point_x[p, 0] - origin[0]) + R[1, i] * (point_x[p, 1] - origin[1])
                                 + R[2, i] * (point_x[p, 2] - origin[2]))
                 if kind == KIND_GRID and not was:  # outside the object's box: no contact
-                    e0 = max(obj_lo[o, 0] - local[0], 0.0, local[0] - obj_hi[o, 0])
-                    e1 = max(obj_lo[o, 1] - local[1], 0.0, local[1] - obj_hi[o, 1])
-                    e2 = max(obj_lo[o, 2] - local[2], 0.0, local[2] - obj_hi[o, 2])
-                    if e0 > 0.0 or e1 > 0.0 or e2 > 0.0:
-                        e = np.sqrt(e0 * e0 + e1 * e1 + e2 * e2)  # bounds the distance from below
+                    e = _box_gap(obj_lo[o], obj_hi[o], local[0], local[1], local[2])
+                    if e > 0.0:  # e bounds the distance from below
                         if e < min(near[h], near_cap):  # the field (padded around the box) decides
                             d = max(e, _distance(kind, adr, vals, gorg, gvox, gdim, ground_h, local))
                             if d < near_cap:
@@ -313,10 +317,9 @@ class ContactSystem:
         self._obj_active = np.zeros((O, cmodel.hand_count), np.int64)  # active contacts per object and hand
         self.hand_enabled = np.ones(cmodel.hand_count, np.uint8)  # 0: the hand has no contact (not entered)
         # per hand, its skin's distance to the objects at the last collide [m] (inf beyond
-        # near_cap; 0 in contact; collide_kernel says how it is measured): the target lead's gate
+        # NEAR_CAP; 0 in contact; collide_kernel says how it is measured): the target lead's gate
         # (target_lead.py)
         self.near = np.full(cmodel.hand_count, np.inf)
-        self.near_cap = NEAR_CAP
         C = int(capacity)
         self.point = np.zeros(C, np.int32)
         self.object = np.zeros(C, np.int32)
@@ -365,7 +368,7 @@ class ContactSystem:
             m.kn, m.kf, self.anchor, self.normal, self.active, self.slip_state, self._obj_active,
             self._point_x, self._point_x_body,
             self.point, self.object, self.nodes, self.bary, self.body, self.anchor_list,
-            self.normal_list, self.area, self.mu, self.slip, self.near, self.near_cap)
+            self.normal_list, self.area, self.mu, self.slip, self.near, NEAR_CAP)
         self.collision_ms = 1e3 * (time.perf_counter() - t0)
         return self.count
 
