@@ -113,10 +113,17 @@ SIM = {
                       "Newton step as the rest (physics/contact/self_contact.py; about +0.6 ms per coarse step in "
                       "free motion, +3.4 ms in a fist on the benchmark); off: the skins pass through each other"),
     "self_contact_kn": P(float, 1.0e8, "N/m^3", "normal stiffness k_n of skin-skin contact within one hand per unit vertex "
-                         "area (Eq. 12 between two skins; 3x contact_kn: pinched pads stay within 1 mm; above 1.2e8 the "
-                         "thumb and index pushed apart around a pinched ball let it go)", positive=True),
+                         "area (Eq. 12 between two skins; 3x contact_kn: pinched pads stay within 1 mm; at 1.1e8 the "
+                         "thumb and index pushed apart around a pinched ball let it go, at 1e8 too with the "
+                         "targets' lead: README)", positive=True),
     "self_contact_kn_hands": P(float, 3.0e8, "N/m^3", "normal stiffness of skin-skin contact between the two hands (k_f "
                                "scaled alike): palms pressed together stay within 1.5 mm", positive=True),
+    "self_contact_kn_deep": P(float, 0.0, "N/m^3", "normal stiffness added to self_contact_kn (and to "
+                              "self_contact_kn_hands, in proportion) where skin lies deeper than "
+                              "self_contact_deep_from inside another segment (1e10: the tight fist 3.06 -> 1.25 mm deep, "
+                              "but the thumb-index pinch of the ball fails; README)", 0.0),
+    "self_contact_deep_from": P(float, 0.001, "m", "depth beyond which skin-skin contact stiffens by "
+                                "self_contact_kn_deep", 0.0),
     "self_contact_kf": P(float, 5.0e7, "N/m^3", "friction stiffness k_f of skin-skin contact per unit vertex area (Eq. 13)",
                          positive=True),
     "self_contact_friction": P(float, 0.5, "-", "Coulomb mu of skin on skin (self contact, physics/contact/self_contact.py)",

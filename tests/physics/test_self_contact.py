@@ -14,6 +14,7 @@ from softhand_sim.physics.model import build_model, rigid_asset
 from softhand_sim.physics.solver import Solver
 
 KN, KF = 1e8, 5e7
+KD, D0 = 2e9, 5e-4  # stiffer deeper than 0.5 mm: some of the random contacts lie deeper
 
 
 def _contacts(seed, C=6):
@@ -30,7 +31,7 @@ def _contacts(seed, C=6):
     normal /= np.linalg.norm(normal, axis=1)[:, None]
     area = rng.uniform(1e-6, 4e-6, C)
     slip = np.zeros(C, np.uint8)
-    return x, tets, (C, p_tet, p_bary, a_tet, a_bary, offset, normal, area, KN, KF), slip
+    return x, tets, (C, p_tet, p_bary, a_tet, a_bary, offset, normal, area, KN, KF, KD, D0), slip
 
 
 def test_self_contact_gradient_matches_central_differences():
@@ -38,6 +39,9 @@ def test_self_contact_gradient_matches_central_differences():
     g = np.zeros(x.size)
     e = energy.add_gradient(x, tets, *args, g)
     assert e > 0 and np.linalg.norm(g) > 1e-3
+    depth = np.zeros(args[0])
+    energy.contact_forces(x, tets, *args, *(np.zeros((args[0], 3)) for _ in range(3)), depth)
+    assert (depth > D0).any() and (depth < D0).any()  # both sides of the stiffening
     h = 1e-8
     fd = np.zeros(x.size)
     for i in range(x.size):
@@ -75,10 +79,13 @@ def test_self_contact_hessian_symmetric_psd_and_bounds_gauss_newton(sliding):
                 J[3 * c + i, 3 * tets[p_tet[c], a] + i] -= p_bary[c, a]
                 J[3 * c + i, 3 * tets[a_tet[c], a] + i] += a_bary[c, a]
     Kb = np.zeros((3 * C, 3 * C))
+    depth = np.einsum("ci,ci->c", (J @ x.ravel()).reshape(C, 3) + args[5], args[6])  # n . D
+    assert (depth > D0).any() and (depth < D0).any()  # both sides of the stiffening
     for c in range(C):
         nn = args[6][c]
-        Kb[3 * c:3 * c + 3, 3 * c:3 * c + 3] = args[7][c] * (KF * np.eye(3) + (KN - KF) * np.outer(nn, nn))
-    H_exact = J.T @ Kb @ J
+        kn = KN + (KD if depth[c] > D0 else 0.0)
+        Kb[3 * c:3 * c + 3, 3 * c:3 * c + 3] = args[7][c] * (KF * np.eye(3) + (kn - KF) * np.outer(nn, nn))
+    H_exact = J.T @ Kb @ J  # exact away from the kink at D0 (the energy is piecewise quadratic)
     assert np.linalg.eigvalsh(H - H_exact).min() >= -1e-9 * np.abs(H).max()
     # relative mode of contact 1 (different tets): the point's tet moves by -d, the anchor's by +d
     d = np.array([0.3, -0.2, 1.0])

@@ -63,6 +63,7 @@ from softhand_sim.physics.contact.contact_model import vertex_areas
 from softhand_sim.physics.contact.sdf_mesh import mesh_signed_distance_grid
 from softhand_sim.physics.embedded import embedded_positions
 from softhand_sim.physics.energies import self_contact as energy
+from softhand_sim.physics.energies.self_contact import normal_pressure
 from softhand_sim.physics.rotations import quat_to_matrix, quat_to_matrix_into
 
 STICK, SLIP, SLIDING = 0, 1, 2
@@ -100,6 +101,8 @@ class SelfContactModel:
     grid_dims: np.ndarray      # (S,3) i4
     kn: float                  # [N/m^3]
     kf: float
+    kd: float                  # [N/m^3] normal stiffness added deeper than d0 (energies/self_contact.py)
+    d0: float                  # [m]
     mu: float                  # Coulomb coefficient skin on skin
     margin: float              # [m] field value below which a point is a candidate
     build_s: float = 0.0
@@ -168,7 +171,7 @@ def _segment_neighbours(triangles, point_segment, count):
 
 def build_self_contact_model(model, points_rest_tet, points_bary, triangles, point_segment,
                              segment_body, adjacent, kn=3.0e7, kf=1.5e7, mu=0.5,
-                             rest_clearance=0.0015, voxel=0.001, band=4, margin=0.0005,
+                             kd=0.0, d0=0.001, rest_clearance=0.0015, voxel=0.001, band=4, margin=0.0005,
                              segment_hand=None, between_hands=1.0):
     """SelfContactModel of the skin points (embedded in model.tets: tet (P,), bary (P,4)),
     skin triangles (F,3) over those points, point_segment (P,) (segment of each point),
@@ -258,7 +261,7 @@ def build_self_contact_model(model, points_rest_tet, points_bary, triangles, poi
         seg_rest_o=orr, seg_lo=lo, seg_hi=hi, pair_ok=pair_ok, pair_scale=pair_scale,
         grid_values=np.concatenate(values), grid_nearest=np.concatenate(nearest),
         grid_adr=np.array(adr, np.int64), grid_origin=np.array(origin), grid_voxel=np.array(vox),
-        grid_dims=np.array(dims, np.int32), kn=float(kn), kf=float(kf), mu=float(mu),
+        grid_dims=np.array(dims, np.int32), kn=float(kn), kf=float(kf), kd=float(kd), d0=float(d0), mu=float(mu),
         margin=float(margin), build_s=time.perf_counter() - t0)
 
 
@@ -391,7 +394,7 @@ def collide_kernel(node_x, body_x, body_q, body_com_local, v, tets, tet_q,
                    point_tet, point_bary, point_rest, point_area, point_segment, point_exclude,
                    point_normal, nbr_ptr, nbr, seg_points, seg_clusters, cluster_start,
                    seg_body, seg_rest_R, seg_rest_o, seg_lo, seg_hi, pair_ok, pair_scale, grid_values, grid_nearest, grid_adr, grid_origin,
-                   grid_voxel, grid_dims, kn, kf, mu, margin, active, xp,
+                   grid_voxel, grid_dims, kn, kf, kd, d0, mu, margin, active, xp,
                    prev_count, prev_point, prev_seg, prev_vb, prev_orest, prev_nrest,
                    c_point, c_seg, c_vb, c_orest, c_nrest,
                    c_ptet, c_pbary, c_atet, c_abary, c_offset, c_normal, c_area, c_slip):
@@ -464,7 +467,7 @@ def collide_kernel(node_x, body_x, body_q, body_com_local, v, tets, tet_q,
         for i in range(3):
             t[i] = D[i] - dn * n[i]
         tl = np.sqrt(t[0] * t[0] + t[1] * t[1] + t[2] * t[2])
-        limit = mu * kn * dn / kf
+        limit = mu * normal_pressure(dn, kn, kd, d0)[0] / kf
         if tl > limit * (1.0 + _CONE_SLACK):
             slip = SLIP
             sc = 1.0 - limit / tl
@@ -491,7 +494,7 @@ def collide_kernel(node_x, body_x, body_q, body_com_local, v, tets, tet_q,
             for i in range(3):
                 t[i] = D[i] - dn * n[i]
             tl = np.sqrt(t[0] * t[0] + t[1] * t[1] + t[2] * t[2])
-            limit = mu * kn * dn / kf
+            limit = mu * normal_pressure(dn, kn, kd, d0)[0] / kf
             if tl > limit:
                 sc = 1.0 - limit / tl
                 for i in range(3):
@@ -635,7 +638,7 @@ class SelfContactSystem:
             m.point_tet, m.point_bary, m.point_rest, m.point_area, m.point_segment, m.point_exclude,
             m.point_normal, m.nbr_ptr, m.nbr, m.seg_points, m.seg_clusters, m.cluster_start,
             m.seg_body, m.seg_rest_R, m.seg_rest_o, m.seg_lo, m.seg_hi, m.pair_ok, m.pair_scale, m.grid_values, m.grid_nearest, m.grid_adr,
-            m.grid_origin, m.grid_voxel, m.grid_dims, m.kn, m.kf, m.mu, m.margin, self.active, self._xp,
+            m.grid_origin, m.grid_voxel, m.grid_dims, m.kn, m.kf, m.kd, m.d0, m.mu, m.margin, self.active, self._xp,
             self.count, prev["point"], prev["seg"], prev["vb"], prev["orest"], prev["nrest"],
             new["point"], new["seg"], new["vb"], new["orest"], new["nrest"],
             new["ptet"], new["pbary"], new["atet"], new["abary"], new["offset"], new["normal"],
@@ -647,7 +650,7 @@ class SelfContactSystem:
     def _args(self):
         L = self.list
         return (self.tets, self.count, L["ptet"], L["pbary"], L["atet"], L["abary"], L["offset"],
-                L["normal"], L["area"], self.model.kn, self.model.kf)
+                L["normal"], L["area"], self.model.kn, self.model.kf, self.model.kd, self.model.d0)
 
     def value(self, node_x):
         return energy.value(node_x, *self._args())
@@ -668,13 +671,13 @@ class SelfContactSystem:
         c = self.count
         L = self.list
         pts, fn, ff = (np.zeros((c, 3)) for _ in range(3))
-        energy.contact_forces(node_x, *self._args(), pts, fn, ff)
+        depth = np.zeros(c)
+        energy.contact_forces(node_x, *self._args(), pts, fn, ff, depth)
         if cap_friction:
             fn_len = np.linalg.norm(fn, axis=1)
             ff_len = np.linalg.norm(ff, axis=1)
             cap = self.model.mu * fn_len
             ff *= np.where(ff_len > cap, cap / np.maximum(ff_len, 1e-300), 1.0)[:, None]
-        depth = np.linalg.norm(fn, axis=1) / np.maximum(self.model.kn * L["area"][:c], 1e-300)
         return {"points": pts, "normals": L["normal"][:c].copy(), "forces": fn + ff,
                 "force_normal": fn, "force_friction": ff,
                 "segment": self.model.point_segment[L["point"][:c]].copy(), "other": L["seg"][:c].copy(),
@@ -701,6 +704,8 @@ def build_self_contact_system(model, asset, segments, kn=None, kf=None, mu=None,
     capacity = int(p["self_contact_capacity"]) if capacity is None else capacity
     kwargs.setdefault("rest_clearance", float(p["self_contact_rest_clearance"]))
     kwargs.setdefault("margin", float(p["self_contact_margin"]))
+    kwargs.setdefault("kd", float(p["self_contact_kn_deep"]))
+    kwargs.setdefault("d0", float(p["self_contact_deep_from"]))
     layout = getattr(model, "hands", None)
     if layout is not None and layout.count > 1 and "segment_hand" not in kwargs:
         # skin of two hands: their contacts are self_contact_kn_hands stiff

@@ -7,7 +7,10 @@ weights beta) to an anchor on the skin of another segment: a skin vertex of that
     D = x_v + o - x_p,   U = 1/2 w D^T K D,   K = k_n n n^T + k_f (I - n n^T)      [J]
 
 so both skins carry the force (equal and opposite: f = w K D pushes the point toward the anchor
-and the anchor's vertex back). The normal n (world) and offset o are frozen for the step: the
+and the anchor's vertex back). Deeper than d0 the normal part stiffens by k_d (params
+self_contact_kn_deep, self_contact_deep_from; k_d = 0 by default):
+    U += 1/2 w k_d max(n . D - d0, 0)^2
+piecewise quadratic, C1, convex in D: the normal stiffness is k_n + k_d past d0, k_n before. The normal n (world) and offset o are frozen for the step: the
 collide stage (contact/self_contact.py) refreshes them from the anchor tet's rotation, as
 energies/contact.py freezes a static object's frame. w [m^2] is the point's skin area (half of
 it: every pair of segments is tested both ways), k_n, k_f [N/m^3].
@@ -51,34 +54,47 @@ def _frame(c, x, tets, p_tet, p_bary, a_tet, a_bary, offset):
 
 
 @njit(cache=True)
-def _force(D, n, w, kn, kf):
-    """f = w K D (3,) [N] and its normal part dn = n . D [m]."""
-    dn = n[0] * D[0] + n[1] * D[1] + n[2] * D[2]
-    f = np.empty(3)
-    for i in range(3):
-        f[i] = w * (kf * D[i] + (kn - kf) * dn * n[i])
-    return f, dn
+def normal_pressure(dn, kn, kd, d0):
+    """The normal force per unit weight [N/m^2] at depth dn [m]: kn dn, plus kd (dn - d0) deeper
+    than d0, and the normal stiffness there [N/m^3]."""
+    if dn > d0:
+        return kn * dn + kd * (dn - d0), kn + kd
+    return kn * dn, kn
 
 
 @njit(cache=True)
-def value(x, tets, count, p_tet, p_bary, a_tet, a_bary, offset, normal, area, kn, kf):
+def _force(D, n, w, kn, kf, kd, d0):
+    """f (3,) [N] on the point toward its anchor, its normal part dn = n . D [m] and the energy
+    U [J] of the contact."""
+    dn = n[0] * D[0] + n[1] * D[1] + n[2] * D[2]
+    pn, _ = normal_pressure(dn, kn, kd, d0)
+    f = np.empty(3)
+    for i in range(3):
+        f[i] = w * (kf * (D[i] - dn * n[i]) + pn * n[i])
+    tt = D[0] * D[0] + D[1] * D[1] + D[2] * D[2] - dn * dn
+    deep = dn - d0 if dn > d0 else 0.0
+    return f, dn, 0.5 * w * (kf * tt + kn * dn * dn + kd * deep * deep)
+
+
+@njit(cache=True)
+def value(x, tets, count, p_tet, p_bary, a_tet, a_bary, offset, normal, area, kn, kf, kd, d0):
     """Sum of Eq. 12 + 13 over the active self contacts [J]."""
     e = 0.0
     for c in range(count):
         D = _frame(c, x, tets, p_tet, p_bary, a_tet, a_bary, offset)
-        f, dn = _force(D, normal[c], area[c], kn, kf)
-        e += 0.5 * (f[0] * D[0] + f[1] * D[1] + f[2] * D[2])
+        e += _force(D, normal[c], area[c], kn, kf, kd, d0)[2]
     return e
 
 
 @njit(cache=True)
-def add_gradient(x, tets, count, p_tet, p_bary, a_tet, a_bary, offset, normal, area, kn, kf, grad):
+def add_gradient(x, tets, count, p_tet, p_bary, a_tet, a_bary, offset, normal, area, kn, kf, kd, d0,
+                 grad):
     """Adds dU/dx into grad (node n at 3n..3n+2); returns U [J]."""
     e = 0.0
     for c in range(count):
         D = _frame(c, x, tets, p_tet, p_bary, a_tet, a_bary, offset)
-        f, dn = _force(D, normal[c], area[c], kn, kf)
-        e += 0.5 * (f[0] * D[0] + f[1] * D[1] + f[2] * D[2])
+        f, dn, u = _force(D, normal[c], area[c], kn, kf, kd, d0)
+        e += u
         tp, ta = p_tet[c], a_tet[c]
         for a in range(4):
             npn, nan = 3 * tets[tp, a], 3 * tets[ta, a]
@@ -89,12 +105,13 @@ def add_gradient(x, tets, count, p_tet, p_bary, a_tet, a_bary, offset, normal, a
 
 
 @njit(cache=True)
-def _stiffness(c, x, tets, p_tet, p_bary, a_tet, a_bary, offset, normal, area, kn, kf, slip, K):
-    """w K (3,3) [N/m] of contact c into K; a SLIDING contact loses k_f along its friction force."""
+def _stiffness(c, x, tets, p_tet, p_bary, a_tet, a_bary, offset, normal, area, kn, kf, kd, d0, slip, K):
+    """w K (3,3) [N/m] of contact c into K (the normal stiffness at its depth); a SLIDING contact
+    loses k_f along its friction force."""
     n = normal[c]
-    sliding = slip[c] == 2
-    D = _frame(c, x, tets, p_tet, p_bary, a_tet, a_bary, offset) if sliding else n
-    stiffness_into(n[0], n[1], n[2], D[0], D[1], D[2], area[c], kn, kf, sliding, K)
+    D = _frame(c, x, tets, p_tet, p_bary, a_tet, a_bary, offset)
+    _, kn_at = normal_pressure(n[0] * D[0] + n[1] * D[1] + n[2] * D[2], kn, kd, d0)
+    stiffness_into(n[0], n[1], n[2], D[0], D[1], D[2], area[c], kn_at, kf, slip[c] == 2, K)
 
 
 @njit(cache=True)
@@ -113,14 +130,14 @@ def _scatter(tet_slots, t, wa, wb, K, scale, values):
 
 
 @njit(cache=True)
-def add_hessian(x, tets, count, p_tet, p_bary, a_tet, a_bary, offset, normal, area, kn, kf, slip,
-                tet_slots, values):
+def add_hessian(x, tets, count, p_tet, p_bary, a_tet, a_bary, offset, normal, area, kn, kf, kd, d0,
+                slip, tet_slots, values):
     """Adds the block-diagonal majorizer of the Gauss-Newton Hessian (module docstring) into the
     CSR values through the tets' stencils tet_slots (T,12,12)."""
     K = np.empty((3, 3))
     cw = np.empty(4)
     for c in range(count):
-        _stiffness(c, x, tets, p_tet, p_bary, a_tet, a_bary, offset, normal, area, kn, kf, slip, K)
+        _stiffness(c, x, tets, p_tet, p_bary, a_tet, a_bary, offset, normal, area, kn, kf, kd, d0, slip, K)
         tp, ta = p_tet[c], a_tet[c]
         if tp == ta:  # one tet: the exact J^T w K J with weights gamma - beta
             for a in range(4):
@@ -132,16 +149,18 @@ def add_hessian(x, tets, count, p_tet, p_bary, a_tet, a_bary, offset, normal, ar
 
 
 @njit(cache=True)
-def contact_forces(x, tets, count, p_tet, p_bary, a_tet, a_bary, offset, normal, area, kn, kf,
-                   out_point, out_force_n, out_force_f):
+def contact_forces(x, tets, count, p_tet, p_bary, a_tet, a_bary, offset, normal, area, kn, kf, kd, d0,
+                   out_point, out_force_n, out_force_f, out_depth):
     """Per contact: the skin point (world) [m], normal and friction force on the point's side [N]
-    (the anchor's side feels the opposite)."""
+    (the anchor's side feels the opposite) and the depth n . D [m]."""
     for c in range(count):
         D = _frame(c, x, tets, p_tet, p_bary, a_tet, a_bary, offset)
         n = normal[c]
         w = area[c]
         dn = n[0] * D[0] + n[1] * D[1] + n[2] * D[2]
+        out_depth[c] = dn
+        pn, _ = normal_pressure(dn, kn, kd, d0)
         embedded_point(x, tets, p_tet[c], p_bary[c], out_point[c])
         for i in range(3):
-            out_force_n[c, i] = w * kn * dn * n[i]
+            out_force_n[c, i] = w * pn * n[i]
             out_force_f[c, i] = w * kf * (D[i] - dn * n[i])
