@@ -86,3 +86,40 @@ def test_factor_pcg_converges_in_one_iteration_with_a_fresh_factor(system):
                            s._node_inv, s._body_inv, s._r, s._z, s._p, s._Ap, f.arrays)
     assert it <= 2 and res <= 1e-10 and not cap
     assert np.linalg.norm(_matrix(m, values) @ x - b) <= 1e-9 * np.linalg.norm(b)
+
+
+def test_factor_of_object_rows_with_and_without_contact():
+    """Object bodies couple to every surface node through the pattern, but only contacts fill those
+    entries: rows (and their reach) left zero are skipped by the numeric factorization. Solves
+    against scipy's direct solve with no coupling, with one node-object spring, and again with
+    none in the buffer that held the coupled factor (nothing of it may be left in L)."""
+    from types import SimpleNamespace
+    ball = SimpleNamespace(mass=0.1, inertia_local=np.eye(3) * 4e-5, pose=np.array([0.0, 0.0, 0.1, 0, 0, 0, 1.0]))
+    m = build_model(box_hand_with_tets(900), objects=[ball])
+    s = Solver(m)
+    st, control = m.initial_state(), m.control()
+    st.v[:] = np.random.default_rng(4).normal(0.0, 0.05, m.dof_count)
+    s.step(st, control, 0.01)
+    free = s.values.copy()
+    A = _matrix(m, free).tolil()
+    o = m.body_dof0 + 6 * m.bone_count  # the ball's first DOF
+    assert A[:o, o:].count_nonzero() == 0 and len(_matrix(m, free)[:o, o:].indices) > 0  # reserved, zero
+    coupled = free.copy()
+    csr = _matrix(m, coupled)
+    rows = np.flatnonzero(np.diff(csr[:o, o:].indptr))  # DOFs with a reserved entry in the ball's columns
+    n0 = 3 * (rows[0] // 3)
+    k = 2e3  # [N/m] x dt^2-scaled spring between that node and the ball's centre, per axis
+    for i in range(3):
+        for r, c, v in ((n0 + i, n0 + i, k), (o + i, o + i, k), (n0 + i, o + i, -k), (o + i, n0 + i, -k)):
+            slot = csr.indptr[r] + np.searchsorted(csr.indices[csr.indptr[r]:csr.indptr[r + 1]], c)
+            assert csr.indices[slot] == c
+            coupled[slot] += v
+    f = pcg.Factor(m.dof_count, m.indptr, m.indices)
+    r = np.random.default_rng(5).normal(size=m.dof_count)
+    for values in (free, coupled, free, free):  # the factor's two buffers take turns: the last reuses the coupled one
+        f.refresh(m.indptr, m.indices, values)
+        z = np.zeros_like(r)
+        ldlt.ldlt_solve(*f.arrays, r, z)
+        ref = spsolve(_matrix(m, values).tocsc(), r)
+        assert np.linalg.norm(z - ref) <= 1e-9 * np.linalg.norm(ref)
+    assert f.bad_pivots == 0

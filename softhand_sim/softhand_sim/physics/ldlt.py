@@ -9,7 +9,11 @@ The pattern never changes after model build, so everything structural is done on
     sparse Cholesky package", ACM TOMS 2005, done symbolically once),
   * row chunks of equal flop count, so a numeric factorization can be spread over several steps.
 A numeric factorization is then a straight pass over precomputed index arrays (no searching, no
-allocation): rows k0..k1 of L and D from a snapshot of the matrix values.
+allocation): rows k0..k1 of L and D from a snapshot of the matrix values. The pattern reserves a
+dense block between every surface node and every object body (model.py), which only contacts
+fill: a block of row k's triangular solve that is exactly zero (outside the reach of the row's
+nonzero entries) gives a zero block of L and no update, and is skipped, so an object without
+contact costs its diagonal block and one with a few contact nodes the reach of those.
 
 Solve: z = Pᵀ L⁻ᵀ D⁻¹ L⁻¹ P r with L unit lower triangular stored by columns (CSC, diagonal not
 stored) and D⁻¹ stored, so each triangular pass is one multiply-add per entry of L.
@@ -201,6 +205,14 @@ def ldlt_numeric_rows(k0, k1, values, blk_slots, up_ptr, up_row, up_slot, row_pt
             y00, y01, y02 = Y[i, 0, 0], Y[i, 0, 1], Y[i, 0, 2]
             y10, y11, y12 = Y[i, 1, 0], Y[i, 1, 1], Y[i, 1, 2]
             y20, y21, y22 = Y[i, 2, 0], Y[i, 2, 1], Y[i, 2, 2]
+            if (y00 == 0.0 and y01 == 0.0 and y02 == 0.0 and y10 == 0.0 and y11 == 0.0
+                    and y12 == 0.0 and y20 == 0.0 and y21 == 0.0 and y22 == 0.0):
+                # numerically outside the reach of row k's entries (an object row without
+                # contact, or only a few contact nodes): L_ki = 0 and nothing to update
+                for a in range(3):
+                    for b in range(3):
+                        Lx[pe, a, b] = 0.0
+                continue
             for a in range(3):
                 for b in range(3):
                     Y[i, a, b] = 0.0
