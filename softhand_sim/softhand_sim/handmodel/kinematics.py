@@ -23,7 +23,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from softhand_sim.physics.rotations import cross3, matrix_to_quat, quat_to_matrix
+from numba import njit
+
+from softhand_sim.physics.rotations import cross, matrix_to_quat, quat_to_matrix
 from softhand_sim.handmodel.skeleton import THUMB_PRONATION_DEG
 from softhand_sim.handmodel.skeleton_names import BONE_COUNT, JOINT_INDEX, OPENXR_JOINT_COUNT
 
@@ -58,6 +60,7 @@ def _rot_x(a):
     return np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
 
 
+@njit(cache=True)
 def thumb_frame(x, z_palm, flex_axis, s=1.0):
     """Thumb bone frame (3, 3) with x (unit) along the bone: the hand model's rule (skeleton.thumb_layout),
     z = cos(b) z_palm + sin(b) r, r = unit(side * z_palm × x) the radial direction, b the thumb's
@@ -65,15 +68,19 @@ def thumb_frame(x, z_palm, flex_axis, s=1.0):
     along the palm normal (|z_palm × x| < _THUMB_RADIAL_BLEND) the hint of the digit's flexion
     axis, x × a, is blended in so the frame stays defined. s: +1 right hand, -1 left (mirrored).
     Shared by the adapter (frames from tracked joints) and this kinematic hand (ground truth)."""
-    radial = s * cross3(z_palm, x)
+    radial = s * cross(z_palm, x)
     rn = np.linalg.norm(radial)
     hint = _COS_PRONATION * z_palm + _SIN_PRONATION * radial / max(rn, _THUMB_RADIAL_BLEND)
     if rn < _THUMB_RADIAL_BLEND:
-        fallback = cross3(x, flex_axis)
+        fallback = cross(x, flex_axis)
         hint = hint + (_THUMB_RADIAL_BLEND - rn) / _THUMB_RADIAL_BLEND * fallback / max(np.linalg.norm(fallback), 1e-12)
     z = hint - np.dot(hint, x) * x
     z /= np.linalg.norm(z)
-    return np.column_stack((x, cross3(z, x), z))
+    frame = np.empty((3, 3))
+    frame[:, 0] = x
+    frame[:, 1] = cross(z, x)
+    frame[:, 2] = z
+    return frame
 
 
 
