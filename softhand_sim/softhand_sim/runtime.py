@@ -45,7 +45,7 @@ from softhand_sim.physics.rotations import quat_mul, quat_conj, quat_to_matrix
 from softhand_sim.scene import load_scene
 from softhand_sim.physics.solver import STAGE_FIELDS, Solver
 from softhand_sim.physics.state import State
-from softhand_sim.target_lead import TargetLead
+from softhand_sim.target_lead import TargetLead, warm_up as lead_warm_up
 
 # Divergence guard (robustness): a step is rejected when its state is not finite, when the
 # kinetic energy jumps above this bound [J] (a 0.4 kg hand at 70 m/s: far beyond the ~24 m/s a 1 m
@@ -299,6 +299,7 @@ class SimRuntime:
         for side in self.hands:
             self.display_mesh(hand=side)
         coupling_warm_up()
+        lead_warm_up()
         (self.state, self.good_state, self.control, self.hand_targets, self.hand_stamps,
          self.hand_placed, self.steps, self._prev_body_v, self.object_targets, enabled, self.leads) = saved
         self.contacts.reset()

@@ -73,6 +73,15 @@ def extrapolate(poses, vel, tau):
     return out
 
 
+def warm_up():
+    """Compile (or load from numba's cache) the rotation kernels of the lead now: called by the
+    runtime's warm-up step, which leads nothing (its targets have no velocity yet). Left to the
+    first lead, their compile stalled sim_node's loop for seconds in the middle of a run on a
+    fresh checkout."""
+    poses = np.tile([0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0], (2, 1))
+    extrapolate(poses, pose_velocity(poses, poses, 0.01), 0.01)
+
+
 class TargetLead:
     """One hand's targets, their velocity and the contact gate (module docstring)."""
 
