@@ -198,3 +198,30 @@ def test_summary_scores_each_hand_against_the_tracked_one(tmp_path):
     f = offset["hands"]["right"]["fidelity"]
     assert abs(f["palm_mm"]["median"] - 5.0) < 0.01 and f["phalanx_direction_deg"]["median"] < 0.5, f
     assert "right hand vs the tracked one (median / p95): palm 5.0 / 5.0 mm" in format_summary(offset, tmp_path)
+
+
+def test_summary_reports_every_objects_lift(tmp_path):
+    """/world/object_states of a run in which the big box rises 8.3 cm and the ball stays: the
+    summary's object_lift_m has each object's rise from its first state (two_hand_lift's box as
+    well as the ball), and the demo prints the other objects that rose a centimetre or more."""
+    from rclpy.serialization import serialize_message
+
+    from softhand_sim.commands.demo import format_summary
+    from softhand_sim.commands.run_summary import summarize_run
+    from softhand_sim.ros.bagio import write_bag
+    from softhand_sim.ros.msgs import object_states_from_numpy
+
+    names = ["ball", "big_box", "mug"]
+    records = []
+    for k, rise in enumerate([0.0, 0.04, 0.083, 0.05]):
+        poses = np.array([[0.0, 0.0, 0.8, 0, 0, 0, 1.0], [0.3, 0.0, 0.85 + rise, 0, 0, 0, 1.0],
+                          [0.5, 0.0, 0.8 + 0.002 * k, 0, 0, 0, 1.0]])
+        msg = object_states_from_numpy(names, poses, np.zeros((3, 6)), np.zeros((3, 6)), T0_NS + k * 10**8)
+        records.append(("/world/object_states", "trajectory_msgs/msg/MultiDOFJointTrajectory", T0_NS + k * 10**8,
+                        serialize_message(msg)))
+    write_bag(tmp_path / "rec", records)
+    s = summarize_run(tmp_path / "rec")
+    assert abs(s["object_lift_m"]["big_box"] - 0.083) < 1e-9
+    assert s["object_lift_m"]["ball"] == 0.0 and abs(s["object_lift_m"]["mug"] - 0.006) < 1e-9
+    text = format_summary(s, tmp_path)
+    assert "other objects lifted: big_box 8.3 cm" in text and "mug" not in text

@@ -4,7 +4,7 @@ Starts world_node, sim_node, one tracking_node per hand and record_node as separ
 (loopback-only discovery, a ROS domain of their own), waits until they are up, plays the bag with
 play_node, stops everything when the bag ends, then writes runs/<stamp>/:
     bag/            the recording (rosbag2, mcap storage)
-    summary.json    rates per node, sim step p50/p99, latency, contacts, ball lift, hand measures in use
+    summary.json    rates per node, sim step p50/p99, latency, contacts, ball lift (and every object's), hand measures in use
     preview.png     key frames drawn from the recording (CPU renderer), preview.gif
     logs/           each node's output
 
@@ -278,6 +278,8 @@ def format_summary(s, out_dir):
         hand_measures_line(s.get("hand_measures", {})),
         f"  max active contacts: {s.get('max_contacts', 0)} (skin on skin: {s.get('max_skin_contacts', 0)})",
         f"  ball: lifted {100 * s.get('ball_lift_m', 0.0):.1f} cm (lifted >= 8 cm: {s.get('ball_lifted', False)})",
+        *([f"  other objects lifted: " + ", ".join(f"{name} {100 * z:.1f} cm" for name, z in others.items())]
+          if (others := {n: z for n, z in s.get("object_lift_m", {}).items() if n != "ball" and z >= 0.01}) else []),
         f"  recording: {s.get('bag_messages', 0)} messages, {s.get('bag_mb', 0.0):.1f} MB, all values finite: "
         f"{s.get('all_finite', False)}",
     ]

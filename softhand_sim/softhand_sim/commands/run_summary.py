@@ -245,6 +245,7 @@ def summarize_run(bag_dir, bag_name="", exit_codes=None, input_bag=None, play_lo
     max_contacts = max_skin_contacts = 0
     max_contacts_hand, max_skin_hand = defaultdict(int), defaultdict(int)
     ball_z = []
+    object_z = defaultdict(list)  # every object of the world's states: its lift (two_hand_lift lifts the big box)
     all_finite = True
     count = 0
     with reader:
@@ -270,8 +271,11 @@ def summarize_run(bag_dir, bag_name="", exit_codes=None, input_bag=None, play_lo
                 all_finite = False
             if conn.topic == "/world/object_states":
                 names = list(msg.joint_names)
-                if LIFT_OBJECT in names and msg.points:
-                    ball_z.append(msg.points[0].transforms[names.index(LIFT_OBJECT)].translation.z)
+                if msg.points:
+                    for name, tf in zip(names, msg.points[0].transforms):
+                        object_z[name].append(tf.translation.z)
+                    if LIFT_OBJECT in names:
+                        ball_z.append(msg.points[0].transforms[names.index(LIFT_OBJECT)].translation.z)
             elif conn.topic == "/diagnostics":
                 for status in msg.status:
                     if status_node(status.name).startswith(TRACKING_NODE):  # the last report: final counts
@@ -352,6 +356,7 @@ def summarize_run(bag_dir, bag_name="", exit_codes=None, input_bag=None, play_lo
         "max_skin_contacts": max_skin_contacts,
         "ball_lift_m": float(max(ball_z) - ball_z[0]) if ball_z else 0.0,
         "ball_lifted": bool(ball_z and max(ball_z) - ball_z[0] >= 0.08),
+        "object_lift_m": {name: float(max(z) - z[0]) for name, z in sorted(object_z.items())},
         "all_finite": all_finite,
     })
     return summary
