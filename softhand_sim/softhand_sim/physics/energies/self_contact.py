@@ -10,9 +10,10 @@ so both skins carry the force (equal and opposite: f = w K D pushes the point to
 and the anchor's vertex back). Deeper than d0 the normal part stiffens by k_d (params
 self_contact_kn_deep, self_contact_deep_from; k_d = 0 by default):
     U += 1/2 w k_d max(n . D - d0, 0)^2
-piecewise quadratic, C1, convex in D: the normal stiffness is k_n + k_d past d0, k_n before. The normal n (world) and offset o are frozen for the step: the
-collide stage (contact/self_contact.py) refreshes them from the anchor tet's rotation, as
-energies/contact.py freezes a static object's frame. w [m^2] is the point's skin area (half of
+piecewise quadratic, C1, convex in D: the normal stiffness is k_n + k_d past d0, k_n before.
+The normal n (world) and offset o are frozen for the step: the collide stage
+(contact/self_contact.py) refreshes them from the anchor tet's rotation, as energies/contact.py
+freezes a static object's frame. w [m^2] is the point's skin area (half of
 it: every pair of segments is tested both ways), k_n, k_f [N/m^3].
 
 Gradient (exact for the frozen n, o): dU/dx_node(point) = -beta_a f,  dU/dx_node(anchor) = +gamma_a f.
