@@ -279,7 +279,6 @@ class SimRuntime:
         self.hand_targets[h] = poses
         self.hand_stamps[h] = stamp
         self.leads[h].on_target(poses, stamp)
-        self.control.set_hand_targets(self.model, h, poses)
         if not self.hand_placed[h]:
             self.place_hand(poses[0], self.hands[h])
 
@@ -376,8 +375,11 @@ class SimRuntime:
         self.last_t = t
         self._update_object_targets(t, dt)
         for h, lead in enumerate(self.leads):
-            if lead.enabled and self.hand_targets[h] is not None:  # off: the targets as they came
-                self.control.set_hand_targets(self.model, h, lead.targets_at(t + dt))
+            # into the step's inputs once per step, not per message (250 Hz per hand): the latest
+            # targets, led to the end of the step (lead off: as they came)
+            if self.hand_targets[h] is not None:
+                self.control.set_hand_targets(self.model, h, lead.targets_at(t + dt) if lead.enabled
+                                              else self.hand_targets[h])
         t1 = clock()
         stats = self.solver.step(self.state, self.control, dt)
         t2 = clock()

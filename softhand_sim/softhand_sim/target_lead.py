@@ -32,6 +32,7 @@ from __future__ import annotations
 from collections import deque
 
 import numpy as np
+from numba import njit
 
 from softhand_sim.physics.rotations import integrate_rotation, quat_conj, quat_log, quat_mul
 
@@ -54,8 +55,21 @@ NEAR_GATE = 0.02       # [m] no lead while the skin is nearer than this to an ob
 def pose_velocity(prev, cur, dt):
     """(n, 6) velocity of the bone-frame origins [m/s] and world angular velocity [rad/s] taking
     poses prev -> cur (n, 7) over dt [s]."""
-    w = np.array([quat_log(quat_mul(c[3:].copy(), quat_conj(p[3:].copy()))) for p, c in zip(prev, cur)])
-    return np.hstack([(cur[:, :3] - prev[:, :3]) / dt, w.reshape(-1, 3) / dt])
+    out = np.empty((len(cur), 6))
+    _pose_velocity(np.ascontiguousarray(prev, dtype=np.float64), np.ascontiguousarray(cur, dtype=np.float64),
+                   float(dt), out)
+    return out
+
+
+@njit(cache=True)
+def _pose_velocity(prev, cur, dt, out):
+    """pose_velocity compiled: it runs on every target message (250 Hz per hand in sim_node), where
+    a Python loop of per-bone kernel calls took ~3 % of the node's samples."""
+    for b in range(cur.shape[0]):
+        w = quat_log(quat_mul(cur[b, 3:].copy(), quat_conj(prev[b, 3:].copy())))
+        for i in range(3):
+            out[b, i] = (cur[b, i] - prev[b, i]) / dt
+            out[b, 3 + i] = w[i] / dt
 
 
 def _squared_norms(vel):
