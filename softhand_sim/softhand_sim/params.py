@@ -114,8 +114,7 @@ SIM = {
                       "free motion, +3.4 ms in a fist on the benchmark); off: the skins pass through each other"),
     "self_contact_kn": P(float, 1.0e8, "N/m^3", "normal stiffness k_n of skin-skin contact within one hand per unit vertex "
                          "area (Eq. 12 between two skins; 3x contact_kn: pinched pads stay within 1 mm; at 1.1e8 the "
-                         "thumb and index pushed apart around a pinched ball let it go, at 1e8 too with the "
-                         "targets' lead: README)", positive=True),
+                         "pinch_lift ball drops with self contact on, at 1e8 too with the targets' lead: README)", positive=True),
     "self_contact_kn_hands": P(float, 3.0e8, "N/m^3", "normal stiffness of skin-skin contact between the two hands (k_f "
                                "scaled alike): palms pressed together stay within 1.5 mm", positive=True),
     "self_contact_kn_deep": P(float, 0.0, "N/m^3", "normal stiffness added to self_contact_kn (and to "
