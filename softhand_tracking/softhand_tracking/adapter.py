@@ -237,6 +237,24 @@ def validate_joints(joints, config: AdapterConfig) -> np.ndarray:
     return p
 
 
+_warm = False
+
+
+def warm_up() -> None:
+    """Compile (or load from numba's cache) the bone-frame kernels now, once per process: every
+    TrackerAdapter calls it when made, so a node does it before it spins. Left to the first
+    tracker frame, a fresh checkout compiled them inside the tracking node's (and the recorder's)
+    first callback, a stall of seconds while frames arrive."""
+    global _warm
+    if _warm:
+        return
+    from softhand_sim.handmodel.kinematics import forward_kinematics
+    joints, _ = forward_kinematics(np.array([0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0]), np.zeros((5, 4)))
+    for hand in ("right", "left"):
+        bone_frames(joints[:, :3] * ([1.0, 1.0, 1.0] if hand == "right" else [1.0, -1.0, 1.0]), hand)
+    _warm = True
+
+
 class TrackerAdapter:
     """Converts tracker frames to bone targets, counting rejected frames by reason.
 
@@ -251,6 +269,7 @@ class TrackerAdapter:
         self.rejected = {reason: 0 for reason in REJECT_REASONS}
         self.accepted = 0
         self.last_reject = ""
+        warm_up()
 
     def reject(self, err: RejectedFrame) -> None:
         """Count a rejected frame (also used by the loop for frames refused on their stamp)."""
