@@ -31,3 +31,14 @@ def ros_env():
 @pytest.fixture(scope="session")
 def repo_root():
     return REPO
+
+
+def pytest_terminal_summary(terminalreporter):
+    """The first failure of every test that passed on a rerun (rerunfailures prints only its
+    name, even with -rR): a node-level test's rerun on a fresh clone is then a cause, not a guess."""
+    reruns = terminalreporter.stats.get("rerun", [])
+    if reruns:
+        terminalreporter.section("the failures that were rerun")
+        for rep in reruns:
+            terminalreporter.write_line(f"{rep.nodeid} ({rep.when}):")
+            terminalreporter.write_line(rep.longreprtext[-4000:])
