@@ -161,29 +161,23 @@ def test_warm_up_compiles_every_kernel_the_lead_calls():
     """In a fresh process: after target_lead.warm_up (the runtime's warm-up step calls it), a hand
     that is led compiles nothing more (left to the first lead, the compile stalled sim_node for
     seconds in the middle of a run on a fresh checkout)."""
-    import subprocess
-    import sys
-    code = """
-import numpy as np
-from softhand_sim import target_lead
-from softhand_sim.physics import rotations
-kernels = [getattr(rotations, n) for n in dir(rotations) if hasattr(getattr(rotations, n), 'signatures')]
-target_lead.warm_up()
-before = {k.__name__: len(k.signatures) for k in kernels}
-lead = target_lead.TargetLead()
-q = np.array([0.0, 0.0, np.sin(0.1), np.cos(0.1)])
-for k in range(30):
-    poses = np.tile(np.r_[0.001 * k, 0.0, 0.8, q], (16, 1))
-    poses[:, 3:] = [np.r_[0.0, 0.0, np.sin(0.01 * k), np.cos(0.01 * k)]] * 16
-    lead.on_target(poses, 0.004 * k)
-    out = lead.targets_at(0.004 * k + 0.017)
-assert lead.lead > 0.0
-after = {k.__name__: len(k.signatures) for k in kernels}
-print({n: (before[n], after[n]) for n in before if after[n] != before[n]})
-"""
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
-    assert out.returncode == 0, out.stderr[-2000:]
-    assert out.stdout.strip() == "{}", f"compiled during the lead: {out.stdout}"
+    from tests.support.compiles import compiled_by
+    compiled = compiled_by("""
+        import numpy as np
+        from softhand_sim import target_lead
+        from softhand_sim.physics import rotations
+        target_lead.warm_up()
+        """, "[getattr(rotations, n) for n in dir(rotations) if hasattr(getattr(rotations, n), 'signatures')]", """
+        lead = target_lead.TargetLead()
+        q = np.array([0.0, 0.0, np.sin(0.1), np.cos(0.1)])
+        for k in range(30):
+            poses = np.tile(np.r_[0.001 * k, 0.0, 0.8, q], (16, 1))
+            poses[:, 3:] = [np.r_[0.0, 0.0, np.sin(0.01 * k), np.cos(0.01 * k)]] * 16
+            lead.on_target(poses, 0.004 * k)
+            out = lead.targets_at(0.004 * k + 0.017)
+        assert lead.lead > 0.0
+        """)
+    assert compiled == "{}", f"compiled during the lead: {compiled}"
 
 
 @pytest.mark.slow

@@ -149,24 +149,19 @@ def test_a_new_adapter_has_compiled_what_its_frames_need():
     """In a fresh process: once a TrackerAdapter exists (nodes make theirs before they spin),
     converting right- and left-hand frames of flexed hands compiles nothing more (left to the
     first frame, a fresh checkout compiled the bone-frame kernels inside a node's callback)."""
-    import subprocess
-    import sys
-    code = """
-from softhand_tracking import adapter as ad
-from softhand_sim.handmodel import kinematics
-from softhand_sim.physics import rotations
-import numpy as np
-kernels = [ad._bone_frames, kinematics.thumb_frame, rotations.cross, rotations.matrix_to_quat]
-right, left = ad.TrackerAdapter(), ad.TrackerAdapter(ad.AdapterConfig(hand="left"))
-before = [len(k.signatures) for k in kernels]
-rng = np.random.default_rng(0)
-palm = np.array([0.1, -0.2, 0.9, 0.0, 0.0, np.sin(0.3), np.cos(0.3)])
-joints = [kinematics.forward_kinematics(palm, rng.uniform(0.0, 0.8, (5, 4)))[0] for _ in range(20)]
-for j in joints:
-    assert right.convert(j) is not None
-    assert left.convert(j * [1.0, -1.0, 1.0, 1.0, 1.0, 1.0, 1.0]) is not None
-print({k.__name__: (b, len(k.signatures)) for k, b in zip(kernels, before) if len(k.signatures) != b})
-"""
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
-    assert out.returncode == 0, out.stderr[-2000:]
-    assert out.stdout.strip() == "{}", f"compiled on the first frames: {out.stdout}"
+    from tests.support.compiles import compiled_by
+    compiled = compiled_by("""
+        from softhand_tracking import adapter as ad
+        from softhand_sim.handmodel import kinematics
+        from softhand_sim.physics import rotations
+        import numpy as np
+        right, left = ad.TrackerAdapter(), ad.TrackerAdapter(ad.AdapterConfig(hand="left"))
+        """, "[ad._bone_frames, kinematics.thumb_frame, rotations.cross, rotations.matrix_to_quat]", """
+        rng = np.random.default_rng(0)
+        palm = np.array([0.1, -0.2, 0.9, 0.0, 0.0, np.sin(0.3), np.cos(0.3)])
+        joints = [kinematics.forward_kinematics(palm, rng.uniform(0.0, 0.8, (5, 4)))[0] for _ in range(20)]
+        for j in joints:
+            assert right.convert(j) is not None
+            assert left.convert(j * [1.0, -1.0, 1.0, 1.0, 1.0, 1.0, 1.0]) is not None
+        """)
+    assert compiled == "{}", f"compiled on the first frames: {compiled}"

@@ -258,6 +258,7 @@ def format_summary(s, out_dir):
     from softhand_sim.commands.run_summary import hand_measures_line
 
     r = s.get("rates_hz", {})
+    others = [(n, z) for n, z in s.get("object_lift_m", {}).items() if n != "ball" and z >= 0.01]
     lines = [
         f"run {out_dir}",
         "  rates [Hz]: " + ", ".join(f"{k} {v:.1f}" for k, v in r.items()),
@@ -278,8 +279,7 @@ def format_summary(s, out_dir):
         hand_measures_line(s.get("hand_measures", {})),
         f"  max active contacts: {s.get('max_contacts', 0)} (skin on skin: {s.get('max_skin_contacts', 0)})",
         f"  ball: lifted {100 * s.get('ball_lift_m', 0.0):.1f} cm (lifted >= 8 cm: {s.get('ball_lifted', False)})",
-        *(["  other objects lifted: " + ", ".join(f"{name} {100 * z:.1f} cm" for name, z in others.items())]
-          if (others := {n: z for n, z in s.get("object_lift_m", {}).items() if n != "ball" and z >= 0.01}) else []),
+        *(["  other objects lifted: " + ", ".join(f"{n} {100 * z:.1f} cm" for n, z in others)] if others else []),
         f"  recording: {s.get('bag_messages', 0)} messages, {s.get('bag_mb', 0.0):.1f} MB, all values finite: "
         f"{s.get('all_finite', False)}",
     ]

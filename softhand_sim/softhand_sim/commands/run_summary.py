@@ -244,7 +244,6 @@ def summarize_run(bag_dir, bag_name="", exit_codes=None, input_bag=None, play_lo
     hand_measures = {}
     max_contacts = max_skin_contacts = 0
     max_contacts_hand, max_skin_hand = defaultdict(int), defaultdict(int)
-    ball_z = []
     object_z = defaultdict(list)  # every object of the world's states: its lift (two_hand_lift lifts the big box)
     all_finite = True
     count = 0
@@ -274,8 +273,6 @@ def summarize_run(bag_dir, bag_name="", exit_codes=None, input_bag=None, play_lo
                 if msg.points:
                     for name, tf in zip(names, msg.points[0].transforms):
                         object_z[name].append(tf.translation.z)
-                    if LIFT_OBJECT in names:
-                        ball_z.append(msg.points[0].transforms[names.index(LIFT_OBJECT)].translation.z)
             elif conn.topic == "/diagnostics":
                 for status in msg.status:
                     if status_node(status.name).startswith(TRACKING_NODE):  # the last report: final counts
@@ -336,6 +333,7 @@ def summarize_run(bag_dir, bag_name="", exit_codes=None, input_bag=None, play_lo
     published = _published_frames(play_log) if play_log is not None else None
     frames = {"in_bag": totals.get("in_bag") if in_bag is not None else None, "published": published,
               **{k: v for k, v in totals.items() if k != "in_bag"}}
+    ball_z = object_z.get(LIFT_OBJECT, [])
     summary.update({
         "tracker_frames": {k: v for k, v in frames.items() if v is not None},
         "hands": hands,
