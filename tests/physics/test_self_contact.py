@@ -3,7 +3,6 @@ and an upper bound of the Gauss-Newton one; Coulomb friction between two soft bl
 a thumb-index pinch and a tight fist on the coarse hand."""
 import numpy as np
 import pytest
-import scipy.sparse as sp
 
 from tests.support.solver_fixtures import box_mesh
 from softhand_sim.physics.contact.contact_model import tet_boundary_triangles
@@ -52,59 +51,92 @@ def test_self_contact_gradient_matches_central_differences():
     assert np.linalg.norm(g - fd) <= 1e-6 * np.linalg.norm(g)
 
 
-@pytest.mark.parametrize("sliding", [False, True])
-def test_self_contact_hessian_symmetric_psd_and_bounds_gauss_newton(sliding):
-    """The block-diagonal Hessian is symmetric PSD and H - J^T w K J is PSD (an upper bound, so a
-    Newton step cannot overshoot the contact); for a sticking contact it equals the exact
-    Hessian on the relative mode of its two sides."""
-    x, tets, args, slip = _contacts(1)
-    slip[:] = 2 if sliding else 0
+def _hessian_operator(x, tets, args, slip, scale=1.0):
+    """The self-contact Hessian the PCG works with, dense: the CSR part add_hessian writes plus
+    the rows gauss_newton_rows lists (sum of L K L^T), both as pcg.pcg applies them."""
+    from softhand_sim.physics import pcg
     n = x.size
     st = (3 * tets[:, :, None] + np.arange(3)).reshape(len(tets), 12)
     indptr, indices = build_pattern(n, [st])
     slots = stencil_slots(indptr, indices, st)
     vals = np.zeros(len(indices))
     energy.add_hessian(x, tets, *args, slip, slots, vals)
-    H = sp.csr_matrix((vals, indices, indptr), shape=(n, n)).toarray()
-    assert np.allclose(H, H.T, atol=1e-12 * np.abs(H).max())
-    assert np.linalg.eigvalsh(H).min() >= -1e-9 * np.abs(H).max()
-    if sliding:
-        return
-    # exact Hessian (energy quadratic in x): differences of the gradient
+    C = args[0]
+    nodes, weights, K = np.zeros((C, 8), np.int32), np.zeros((C, 8)), np.zeros((C, 3, 3))
+    rows = energy.gauss_newton_rows(x, tets, *args, slip, scale, nodes, weights, K)
+    H = np.zeros((n, n))
+    for j in range(n):  # column by column through the PCG's own product
+        e = np.zeros(n)
+        e[j] = 1.0
+        out = np.zeros(n)
+        pcg._matvec(indptr, indices, vals * scale, e, out, False, rows, nodes, weights, K)
+        H[:, j] = out
+    return H, rows
+
+
+def _exact_hessian(x, tets, args, slip):
+    """J^T (w K) J of every contact (the energy is quadratic in x away from the kink at D0); a
+    sliding contact without stiffness along its friction force."""
     C, p_tet, p_bary, a_tet, a_bary = args[:5]
+    n = x.size
     J = np.zeros((3 * C, n))
     for c in range(C):
         for a in range(4):
             for i in range(3):
                 J[3 * c + i, 3 * tets[p_tet[c], a] + i] -= p_bary[c, a]
                 J[3 * c + i, 3 * tets[a_tet[c], a] + i] += a_bary[c, a]
-    Kb = np.zeros((3 * C, 3 * C))
-    depth = np.einsum("ci,ci->c", (J @ x.ravel()).reshape(C, 3) + args[5], args[6])  # n . D
+    D = (J @ x.ravel()).reshape(C, 3) + args[5]
+    depth = np.einsum("ci,ci->c", D, args[6])  # n . D
     assert (depth > D0).any() and (depth < D0).any()  # both sides of the stiffening
+    Kb = np.zeros((3 * C, 3 * C))
     for c in range(C):
         nn = args[6][c]
         kn = KN + (KD if depth[c] > D0 else 0.0)
-        Kb[3 * c:3 * c + 3, 3 * c:3 * c + 3] = args[7][c] * (KF * np.eye(3) + (kn - KF) * np.outer(nn, nn))
-    H_exact = J.T @ Kb @ J  # exact away from the kink at D0 (the energy is piecewise quadratic)
-    assert np.linalg.eigvalsh(H - H_exact).min() >= -1e-9 * np.abs(H).max()
-    # relative mode of contact 1 (different tets): the point's tet moves by -d, the anchor's by +d
-    d = np.array([0.3, -0.2, 1.0])
-    u = np.zeros(n)
-    for a in range(4):
-        u[3 * tets[a_tet[1], a]:3 * tets[a_tet[1], a] + 3] += d
-        u[3 * tets[p_tet[1], a]:3 * tets[p_tet[1], a] + 3] -= d
-    one = [np.array([1]) if k == 0 else (v[1:2] if isinstance(v, np.ndarray) else v) for k, v in enumerate(args)]
-    one[0] = 1
-    vals1 = np.zeros(len(indices))
-    energy.add_hessian(x, tets, *one, slip[1:2], slots, vals1)
-    H1 = sp.csr_matrix((vals1, indices, indptr), shape=(n, n)).toarray()
-    q_exact = u @ (J[3:6].T @ Kb[3:6, 3:6] @ J[3:6]) @ u
-    assert u @ H1 @ u == pytest.approx(q_exact, rel=1e-9)
+        k = args[7][c] * (KF * np.eye(3) + (kn - KF) * np.outer(nn, nn))
+        if slip[c] == 2:  # no stiffness along the friction force (its tangential direction)
+            t = D[c] - depth[c] * nn
+            t /= np.linalg.norm(t)
+            k = k - args[7][c] * KF * np.outer(t, t)
+        Kb[3 * c:3 * c + 3, 3 * c:3 * c + 3] = k
+    return J.T @ Kb @ J
+
+
+@pytest.mark.parametrize("sliding", [False, True])
+def test_self_contact_hessian_is_the_exact_gauss_newton_one(sliding):
+    """The Hessian the PCG multiplies by (the CSR part of the contacts within one tet plus the
+    rows of those across two tets) is the exact Gauss-Newton J^T w K J, symmetric PSD, at any
+    scale (dt^2)."""
+    x, tets, args, slip = _contacts(1)
+    slip[:] = 2 if sliding else 0
+    H, rows = _hessian_operator(x, tets, args, slip, scale=0.25)
+    assert rows == args[0] - 1  # all but the contact within one tet
+    H_exact = 0.25 * _exact_hessian(x, tets, args, slip)
+    assert np.abs(H - H_exact).max() <= 1e-9 * np.abs(H_exact).max()
+    assert np.allclose(H, H.T, atol=1e-12 * np.abs(H).max())
+    assert np.linalg.eigvalsh(H).min() >= -1e-9 * np.abs(H).max()
+
+
+def test_hessian_matches_central_differences_of_the_gradient():
+    """Independent of the J^T K J above: columns of the Hessian against central differences of
+    add_gradient (sticking contacts, frozen normals: the energy is quadratic in x away from the
+    kink at D0)."""
+    x, tets, args, slip = _contacts(2)
+    H, _ = _hessian_operator(x, tets, args, slip)
+    h = 1e-7
+    for j in range(0, x.size, 5):
+        gp, gm = np.zeros(x.size), np.zeros(x.size)
+        xp, xm = x.copy(), x.copy()
+        xp.flat[j] += h
+        xm.flat[j] -= h
+        energy.add_gradient(xp, tets, *args, gp)
+        energy.add_gradient(xm, tets, *args, gm)
+        fd = (gp - gm) / (2 * h)
+        assert np.linalg.norm(H[:, j] - fd) <= 1e-5 * max(np.linalg.norm(fd), 1e-3 * np.abs(H).max()), j
 
 
 # ---------------------------------------------------------------- friction between two blocks
-def _two_blocks():
-    """A 4 x 4 x 1 cm slab (segment 0, held: immovable nodes) with a 2 x 2 x 1 cm block
+def _two_blocks(held=True):
+    """A 4 x 4 x 1 cm slab (segment 0; held: immovable nodes) with a 2 x 2 x 1 cm block
     (segment 1) resting on it; every node a contact point."""
     Xl, Tl = box_mesh((0.04, 0.04, 0.01), (4, 4, 1))
     Xu, Tu = box_mesh((0.02, 0.02, 0.01), (2, 2, 2))
@@ -117,7 +149,8 @@ def _two_blocks():
                         bone_com_local=np.zeros((2, 3)), bone_inertia_local=np.tile(np.eye(3) * 1e-6, (2, 1, 1)))
     model = build_model(asset, {"gravity_tissue": False})
     lower = np.arange(len(X)) < len(Xl)
-    model.node_mass[lower] = 1e12
+    if held:
+        model.node_mass[lower] = 1e12
     # each node as a point: the first tet holding it, weight 1 on it
     p_tet = np.zeros(len(X), np.int32)
     p_bary = np.zeros((len(X), 4))
@@ -157,6 +190,39 @@ def test_friction_sticks_below_and_slides_above_mu(ratio, slides):
         assert creep > 5e-3, creep
     else:
         assert abs(creep) < 5e-5, creep
+
+
+def test_skin_contact_forces_are_internal_momentum_follows_the_external_force():
+    """Newton's second law through the contact: the free slab and block pressed together (+-2 N,
+    ramped) and then pushed sideways by 2 mN spread over every node by its mass. Whatever the
+    skins do between them, the total momentum is the external impulse after every step (to the
+    CG tolerance): no part of the contact's Hessian may resist both sides moving together (a
+    block-diagonal majorizer of it, without the rows, did: 1.6e-3 kg m/s of momentum from
+    nowhere in the first step of the press, twice the whole push's impulse)."""
+    model, sc, lower, X = _two_blocks(held=False)
+    model.body_gravity_scale[:] = 0.0  # the two bones (each tied to its tissue) free, no weight
+    solver = Solver(model, {"cg_tolerance": 1e-10}, self_contacts=sc)
+    state, control = model.initial_state(), model.control()
+    control.target_kx[:] = 0.0
+    control.target_ktheta[:] = 0.0
+    top, bottom = (~lower) & (X[:, 2] > 0.01 - 1e-9), lower & (X[:, 2] < -0.01 + 1e-9)
+    mass = model.node_mass
+    dt, push = 1.0 / 60.0, 0.002
+    counts, impulse = [], 0.0
+    for k in range(45):  # the press ramps in over 0.3 s (a step load tunnels through), then the push
+        press = 2.0 * min(1.0, (k + 1) * dt / 0.3)
+        pushing = push if k >= 20 else 0.0
+        control.node_force[:] = 0.0
+        control.node_force[top, 2] = -press / top.sum()
+        control.node_force[bottom, 2] = press / bottom.sum()
+        control.node_force[:, 0] = pushing * mass / mass.sum()
+        solver.step(state, control, dt)
+        impulse += pushing * dt
+        counts.append(sc.count)
+        v = state.v[:3 * model.node_count].reshape(-1, 3)
+        momentum = mass @ v + model.body_mass @ state.v[model.body_dof0:].reshape(-1, 6)[:, :3]
+        np.testing.assert_allclose(momentum, [impulse, 0.0, 0.0], atol=1e-3 * push * dt)
+    assert min(counts[1:]) >= 5  # pressed together all along
 
 
 def test_broad_phase_misses_no_candidate_of_the_deformed_fist():

@@ -9,9 +9,10 @@ arrays in hand order and shifts their indices:
   skin vertices  hand 0's, then hand 1's, ...      (skin triangles shifted by skin0, skin_tet by tet0)
   joints, bone-tissue samples: shifted by bone0 / tet0
 
-No term couples two hands: the system matrix is block-diagonal per hand, the hands meeting only
-in the object bodies' rows (the reserved node-object contact blocks, model.py). A single asset
-gives exactly today's one-hand model.
+No term of the CSR pattern couples two hands: the system matrix is block-diagonal per hand, the
+hands meeting only in the object bodies' rows (the reserved node-object contact blocks, model.py).
+Skin-skin contact between the hands couples them outside the pattern, in the PCG's products
+(pcg.pcg's low-rank term). A single asset gives exactly today's one-hand model.
 """
 from __future__ import annotations
 

@@ -225,13 +225,53 @@ def _apply_precond(kind, r, z, diag_inv, node_inv, body_inv, body_dof0, fac):
             z[o + i] = acc
 
 
-@njit(cache=True)
+NO_LOW_RANK = (0, np.zeros((0, 8), np.int32), np.zeros((0, 8)), np.zeros((0, 3, 3)))
+
+
 def pcg(indptr, indices, values, b, x, tol, max_iter, kind, diag_slot, node_slots, body_slots,
-        body_dof0, diag_inv, node_inv, body_inv, r, z, p, Ap, fac, triplets=False):
-    """Solve A x = b in place from the warm start x. Stops when ||r|| <= tol ||b|| or after
-    max_iter iterations. fac: Factor.arrays (used by PRECOND_FACTOR). triplets: the pattern is
-    made of column triplets (triplet_pattern; faster products). Returns (iterations, relative
-    residual ||r||/||b||, hit_cap)."""
+        body_dof0, diag_inv, node_inv, body_inv, r, z, p, Ap, fac, triplets=False, low_rank=NO_LOW_RANK):
+    """Solve A x = b in place from the warm start x, A = the CSR matrix plus the low-rank term
+    low_rank = (rows, nodes (C,8), weights (C,8), K (C,3,3)): sum over its first `rows` rows of
+    L K L^T, L (3 x n) the row's weights on its nodes' 3 DOFs each (energies/self_contact.
+    gauss_newton_rows: skin-skin contacts coupling two tets, outside the CSR pattern; the
+    preconditioner is built from the CSR matrix alone). Stops when ||r|| <= tol ||b|| or after max_iter
+    iterations. fac: Factor.arrays (used by PRECOND_FACTOR). triplets: the pattern is made of
+    column triplets (triplet_pattern; faster products). Returns (iterations, relative residual
+    ||r||/||b||, hit_cap)."""
+    return _pcg(indptr, indices, values, b, x, tol, max_iter, kind, diag_slot, node_slots, body_slots,
+                body_dof0, diag_inv, node_inv, body_inv, r, z, p, Ap, fac, triplets, *low_rank)
+
+
+@njit(cache=True)
+def _add_low_rank(rows, nodes, weights, K, x, out):
+    """out += sum over rows of L K L^T x (pcg's low-rank term)."""
+    y = np.empty(3)
+    for c in range(rows):
+        y[:] = 0.0
+        for a in range(8):
+            w, o = weights[c, a], 3 * nodes[c, a]
+            for i in range(3):
+                y[i] += w * x[o + i]
+        for i in range(3):
+            f = K[c, i, 0] * y[0] + K[c, i, 1] * y[1] + K[c, i, 2] * y[2]
+            for a in range(8):
+                out[3 * nodes[c, a] + i] += weights[c, a] * f
+
+
+@njit(cache=True)
+def _matvec(indptr, indices, values, x, out, triplets, rows, nodes, weights, K):
+    if triplets:
+        csr_matvec3(indptr, indices, values, x, out)
+    else:
+        csr_matvec(indptr, indices, values, x, out)
+    if rows > 0:
+        _add_low_rank(rows, nodes, weights, K, x, out)
+
+
+@njit(cache=True)
+def _pcg(indptr, indices, values, b, x, tol, max_iter, kind, diag_slot, node_slots, body_slots,
+         body_dof0, diag_inv, node_inv, body_inv, r, z, p, Ap, fac, triplets, lr_rows, lr_nodes,
+         lr_weights, lr_K):
     n = b.shape[0]
     if kind == PRECOND_JACOBI:
         for i in range(n):
@@ -242,10 +282,7 @@ def pcg(indptr, indices, values, b, x, tol, max_iter, kind, diag_slot, node_slot
     bnorm = np.sqrt(np.dot(b, b))
     if bnorm == 0.0:
         bnorm = 1.0
-    if triplets:
-        csr_matvec3(indptr, indices, values, x, Ap)
-    else:
-        csr_matvec(indptr, indices, values, x, Ap)
+    _matvec(indptr, indices, values, x, Ap, triplets, lr_rows, lr_nodes, lr_weights, lr_K)
     for i in range(n):
         r[i] = b[i] - Ap[i]
     rnorm = np.sqrt(np.dot(r, r))
@@ -256,10 +293,7 @@ def pcg(indptr, indices, values, b, x, tol, max_iter, kind, diag_slot, node_slot
     rz = np.dot(r, z)
     it = 0
     while it < max_iter:
-        if triplets:
-            csr_matvec3(indptr, indices, values, p, Ap)
-        else:
-            csr_matvec(indptr, indices, values, p, Ap)
+        _matvec(indptr, indices, values, p, Ap, triplets, lr_rows, lr_nodes, lr_weights, lr_K)
         pAp = np.dot(p, Ap)
         if pAp <= 0.0:
             break

@@ -13,8 +13,9 @@ loads; control.py) and advances the State in place. Its stages, in this order:
                None): detection, anchors, stick/slip -> this step's active contact lists
   2. assemble  gradient and CSR Hessian of every term at the state (`assemble`): tissue, joints,
                bone-tissue, Eq. 14 targets, gravity, node loads, contacts and self contacts
-               (Eq. 12-13)
-  3. PCG       (M + dt^2 H) v = M v - dt grad U
+               (Eq. 12-13); the self contacts between two tets, outside the CSR pattern, as
+               the rows of a low-rank term (SelfContactSystem.hessian_rows)
+  3. PCG       (M + dt^2 H) v = M v - dt grad U, H = the CSR matrix plus that low-rank term
   4. advance   positions and orientations by dt v
 Each term is one Python->numba call per step (not per element or CG iteration).
 StepStats times the stages (STAGE_FIELDS, wall clock): collision and self_collision (1.), assembly
@@ -206,6 +207,9 @@ class Solver:
         self.collide(state)
         t1 = clock()
         energy = self.assemble(state, control)
+        sc = self.self_contacts
+        # the skin-skin contacts' Hessian between two tets: outside the CSR pattern, in the products
+        low_rank = sc.hessian_rows(state.node_x, dt * dt) if sc is not None else pcg_mod.NO_LOW_RANK
         finalize_system(self.values, self.rhs, self.grad, state.v, dt, m.node_mass, m.body_mass,
                         state.body_q, m.body_inertia_local, m.diag_slot, m.body_slots, m.body_dof0)
         t2 = clock()
@@ -222,13 +226,12 @@ class Solver:
             m.indptr, m.indices, self.values, self.rhs, state.v, self.cg_tol, self.cg_max_iter,
             self.precond, m.diag_slot, m.node_slots, m.body_slots, m.body_dof0, self._diag_inv,
             self._node_inv, self._body_inv, self._r, self._z, self._p, self._Ap, self.factor.arrays,
-            self._triplets)
+            self._triplets, low_rank)
         t4 = clock()
         self._last_iters = iters
         _advance(state.node_x, state.v, state.body_x, state.body_q, state.body_pose,
                  m.body_com_local, dt, m.body_dof0)
         t5 = clock()
-        sc = self.self_contacts
         self_ms = sc.collision_ms if sc is not None else 0.0  # timed inside the collide stage
         assembly_ms, factor_ms = (t2 - t1) * 1e3, (t3 - t2) * 1e3
         pcg_ms, advance_ms = (t4 - t3) * 1e3, (t5 - t4) * 1e3

@@ -604,6 +604,8 @@ class SelfContactSystem:
         self._xp = np.zeros((P, 3))
         C = int(capacity)
         self._lists = [self._new_list(C), self._new_list(C)]
+        # the rows of pcg's low-rank term (energies/self_contact.gauss_newton_rows)
+        self._rows = (np.zeros((C, 8), np.int32), np.zeros((C, 8)), np.zeros((C, 3, 3)))
         self.count = 0
         self.dropped = 0
         self.tested = 0
@@ -656,10 +658,19 @@ class SelfContactSystem:
         return energy.value(node_x, *self._args())
 
     def add_all(self, state, model, grad, values):
-        """Gradient and Hessian of the self contacts at state into grad / CSR values; returns [J]."""
+        """Gradient of the self contacts at state into grad and the part of their Hessian that
+        fits the CSR pattern into values (hessian_rows gives the rest); returns [J]."""
         e = energy.add_gradient(state.node_x, *self._args(), grad)
         energy.add_hessian(state.node_x, *self._args(), self.list["slip"], self.tet_slots, values)
         return e
+
+    def hessian_rows(self, node_x, scale):
+        """pcg's low_rank term: the exact Hessian of the active contacts at node_x that add_all
+        leaves out of the CSR values (those across two tets), K scaled by `scale` (dt^2: the
+        system is M + dt^2 H)."""
+        nodes, weights, K = self._rows
+        rows = energy.gauss_newton_rows(node_x, *self._args(), self.list["slip"], scale, nodes, weights, K)
+        return rows, nodes, weights, K
 
     def output(self, node_x, cap_friction=True):
         """Per active contact: points (C,3) [m] (the point's side), normals (C,3) (from the

@@ -18,16 +18,23 @@ it: every pair of segments is tested both ways), k_n, k_f [N/m^3].
 
 Gradient (exact for the frozen n, o): dU/dx_node(point) = -beta_a f,  dU/dx_node(anchor) = +gamma_a f.
 
-Hessian (stated choice): the Gauss-Newton J^T (w K) J couples the point's tet to the anchor's
-tet, two tets of different fingers that the model's fixed sparsity pattern does not couple. We
-use instead its block-diagonal majorizer
-    2 w (beta beta^T (x) K)  on the point's tet,   2 w (gamma gamma^T (x) K)  on the anchor's tet,
-which lives inside the tets' own stencils (model.tet_slots). (a+b)^T K (a+b) <= 2 a^T K a +
-2 b^T K b for PSD K, so it bounds J^T w K J from above: symmetric PSD, exact for the two sides
-pressed against each other (the relative mode), over-stiff for both moving together (the common
-mode only converges slower; the gradient, hence the equilibrium, is exact). When both sides lie
-in the same tet, the exact J^T w K J (weights gamma - beta). A SLIDING contact (slip == 2) gets
-no stiffness along its friction force, as energies/contact.py.
+Hessian: the exact Gauss-Newton J^T (w K) J, in two parts. A contact whose two sides lie in one
+tet goes into the CSR values (weights gamma - beta, inside the tet's stencil model.tet_slots).
+Any other couples two tets of different fingers, which the model's fixed sparsity pattern does
+not couple: `gauss_newton_rows` lists it as a row (nodes, weights L = (-beta, gamma), w K) and
+the PCG adds sum L K L^T in every product (pcg.pcg's low-rank term), so the linear system is the
+exact Gauss-Newton one while the preconditioner (built from the CSR values) never sees these
+contacts. Measured on the coarse fist (kn_deep 1e10, 54 contacts), against two alternatives
+that put a block-diagonal part of it into the CSR values (and the rest into the rows): CG
+13-16 iterations, step 2.5-3.2 ms; with the majorizer 2 w (beta beta^T (x) K) and
+2 w (gamma gamma^T (x) K) on the two tets, 26 iterations, 3.3-3.6 ms; with the exact diagonal
+blocks, 28-29, 3.5-3.7 ms. The majorizer alone, without the rows (an earlier choice), is not
+the exact Hessian: with one Newton step per time step, its stiffness on both sides moving
+together acts as a drag toward where the two skins were, so fingers touching each other held
+the whole hand back (in a free-air approach of the ball pinch, the palm 12.7 mm behind where it
+is without self contact; with kn_deep 1e10, stuck) and momentum was not conserved
+(tests/physics/test_self_contact.py). A SLIDING contact (slip == 2) gets no stiffness along its
+friction force, as energies/contact.py.
 
 Arrays of the active list (first `count` rows):
     p_tet (C,) i4, p_bary (C,4)    the point's tet and weights
@@ -133,20 +140,45 @@ def _scatter(tet_slots, t, wa, wb, K, scale, values):
 @njit(cache=True)
 def add_hessian(x, tets, count, p_tet, p_bary, a_tet, a_bary, offset, normal, area, kn, kf, kd, d0,
                 slip, tet_slots, values):
-    """Adds the block-diagonal majorizer of the Gauss-Newton Hessian (module docstring) into the
-    CSR values through the tets' stencils tet_slots (T,12,12)."""
+    """Adds the exact Gauss-Newton Hessian of the contacts whose two sides lie in one tet into
+    the CSR values through the tets' stencils tet_slots (T,12,12); `gauss_newton_rows` lists
+    the others."""
     K = np.empty((3, 3))
     cw = np.empty(4)
     for c in range(count):
-        _stiffness(c, x, tets, p_tet, p_bary, a_tet, a_bary, offset, normal, area, kn, kf, kd, d0, slip, K)
         tp, ta = p_tet[c], a_tet[c]
-        if tp == ta:  # one tet: the exact J^T w K J with weights gamma - beta
-            for a in range(4):
-                cw[a] = a_bary[c, a] - p_bary[c, a]
-            _scatter(tet_slots, tp, cw, cw, K, 1.0, values)
-        else:
-            _scatter(tet_slots, tp, p_bary[c], p_bary[c], K, 2.0, values)
-            _scatter(tet_slots, ta, a_bary[c], a_bary[c], K, 2.0, values)
+        if tp != ta:
+            continue
+        _stiffness(c, x, tets, p_tet, p_bary, a_tet, a_bary, offset, normal, area, kn, kf, kd, d0, slip, K)
+        for a in range(4):
+            cw[a] = a_bary[c, a] - p_bary[c, a]
+        _scatter(tet_slots, tp, cw, cw, K, 1.0, values)
+
+
+@njit(cache=True)
+def gauss_newton_rows(x, tets, count, p_tet, p_bary, a_tet, a_bary, offset, normal, area, kn, kf, kd,
+                      d0, slip, scale, nodes, weights, K):
+    """The exact Gauss-Newton Hessian of the contacts whose sides lie in two tets, one row per
+    contact: nodes (C,8) (the point's tet, then the anchor's), weights (C,8) = (-beta, gamma)
+    (D = L^T x + o) and K (C,3,3) = scale w K. Returns the rows written; the Hessian is the
+    sum over rows of (L K L^T), L the weights on the row's nodes (pcg.pcg's low-rank term)."""
+    Kc = np.empty((3, 3))
+    r = 0
+    for c in range(count):
+        tp, ta = p_tet[c], a_tet[c]
+        if tp == ta:
+            continue
+        _stiffness(c, x, tets, p_tet, p_bary, a_tet, a_bary, offset, normal, area, kn, kf, kd, d0, slip, Kc)
+        for a in range(4):
+            nodes[r, a] = tets[tp, a]
+            weights[r, a] = -p_bary[c, a]
+            nodes[r, 4 + a] = tets[ta, a]
+            weights[r, 4 + a] = a_bary[c, a]
+        for i in range(3):
+            for j in range(3):
+                K[r, i, j] = scale * Kc[i, j]
+        r += 1
+    return r
 
 
 @njit(cache=True)
