@@ -110,17 +110,17 @@ SIM = {
     "contact_kf": P(float, 1.5e7, "N/m^3", "tangential (friction) stiffness k_f of Eq. 13 per unit vertex area "
                     "(not in the paper); the Coulomb mu of each contact is the scene's friction", positive=True),
     "self_contact": P(bool, False, "-", "skin-skin contact of the hands (fingers, palm, hand on hand) in the same "
-                      "Newton step as the rest (physics/contact/self_contact.py; about +0.6 ms per coarse step in "
-                      "free motion, +3.4 ms in a fist on the benchmark); off: the skins pass through each other"),
+                      "Newton step as the rest (physics/contact/self_contact.py; one coarse hand on the benchmark: "
+                      "free motion 2.2 ms a step against 1.3 ms without, a tight fist 2.8-3.0 ms); off: the skins "
+                      "pass through each other"),
     "self_contact_kn": P(float, 1.0e8, "N/m^3", "normal stiffness k_n of skin-skin contact within one hand per unit vertex "
-                         "area (Eq. 12 between two skins; 3x contact_kn: pinched pads stay within 1 mm; at 1.1e8 the "
-                         "pinch_lift ball drops with self contact on, at 1e8 too with the targets' lead: README)", positive=True),
+                         "area (Eq. 12 between two skins; 3x contact_kn: pinched pads stay within 1 mm)", positive=True),
     "self_contact_kn_hands": P(float, 3.0e8, "N/m^3", "normal stiffness of skin-skin contact between the two hands (k_f "
                                "scaled alike): palms pressed together stay within 1.5 mm", positive=True),
-    "self_contact_kn_deep": P(float, 0.0, "N/m^3", "normal stiffness added to self_contact_kn (and to "
+    "self_contact_kn_deep": P(float, 1.0e10, "N/m^3", "normal stiffness added to self_contact_kn (and to "
                               "self_contact_kn_hands, in proportion) where skin lies deeper than "
-                              "self_contact_deep_from inside another segment (1e10: the tight fist 3.06 -> 1.25 mm deep, "
-                              "but the thumb-index pinch of the ball fails; README)", 0.0),
+                              "self_contact_deep_from inside another segment (0: the tight fist 3.01 mm deep, "
+                              "1e10: 1.36 mm; README)", 0.0),
     "self_contact_deep_from": P(float, 0.001, "m", "depth beyond which skin-skin contact stiffens by "
                                 "self_contact_kn_deep", 0.0),
     "self_contact_kf": P(float, 5.0e7, "N/m^3", "friction stiffness k_f of skin-skin contact per unit vertex area (Eq. 13)",
