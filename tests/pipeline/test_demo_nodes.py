@@ -215,11 +215,8 @@ def test_handover_through_both_hands(tmp_path):
         assert f["in_bag"] > 1000 and f["in_bag"] == f["recorded"] == f["received"] == f["accepted"], (side, f)
         assert h["bones_messages"] > 100, (side, h)
     assert summary["all_finite"], summary
-    states = [msg for _, msg in read_topic(out / "bag", "/world/object_states")]
-    names = list(states[-1].joint_names)
-    ball = [np.array([(s.points[0].transforms[names.index("ball")].translation.__getattribute__(a)) for a in "xyz"])
-            for s in (states[0], states[-1])]
-    miss = np.linalg.norm(ball[1] - (ball[0] + HANDOVER_CARRY))
+    # where the ball ended against where it started, from the summary (the demo prints it)
+    miss = np.linalg.norm(np.asarray(summary["object_moved_m"]["ball"]) - HANDOVER_CARRY)
     print(f"handover through the nodes: ball lifted {100 * summary['ball_lift_m']:.1f} cm, ended "
           f"{100 * miss:.1f} cm from its spot (offline: 0.3 cm)")
 

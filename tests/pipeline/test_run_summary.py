@@ -200,10 +200,12 @@ def test_summary_scores_each_hand_against_the_tracked_one(tmp_path):
     assert "right hand vs the tracked one (median / p95): palm 5.0 / 5.0 mm" in format_summary(offset, tmp_path)
 
 
-def test_summary_reports_every_objects_lift(tmp_path):
-    """/world/object_states of a run in which the big box rises 8.3 cm and the ball stays: the
-    summary's object_lift_m has each object's rise from its first state (two_hand_lift's box as
-    well as the ball), and the demo prints the other objects that rose a centimetre or more."""
+def test_summary_reports_every_objects_lift_and_where_it_ended(tmp_path):
+    """/world/object_states of a run in which the big box rises 8.3 cm and ends 5 cm up, the ball
+    is carried 20 cm along y on the table (a handover) and the mug barely moves: the summary's
+    object_lift_m has each object's rise from its first state (two_hand_lift's box as well as the
+    ball), object_moved_m each one's last position less its first, and the demo prints the other
+    objects that rose, and the objects that moved, a centimetre or more."""
     from rclpy.serialization import serialize_message
 
     from softhand_sim.commands.demo import format_summary
@@ -214,7 +216,7 @@ def test_summary_reports_every_objects_lift(tmp_path):
     names = ["ball", "big_box", "mug"]
     records = []
     for k, rise in enumerate([0.0, 0.04, 0.083, 0.05]):
-        poses = np.array([[0.0, 0.0, 0.8, 0, 0, 0, 1.0], [0.3, 0.0, 0.85 + rise, 0, 0, 0, 1.0],
+        poses = np.array([[0.0, 0.2 * k / 3, 0.8, 0, 0, 0, 1.0], [0.3, 0.0, 0.85 + rise, 0, 0, 0, 1.0],
                           [0.5, 0.0, 0.8 + 0.002 * k, 0, 0, 0, 1.0]])
         msg = object_states_from_numpy(names, poses, np.zeros((3, 6)), np.zeros((3, 6)), T0_NS + k * 10**8)
         records.append(("/world/object_states", "trajectory_msgs/msg/MultiDOFJointTrajectory", T0_NS + k * 10**8,
@@ -223,5 +225,10 @@ def test_summary_reports_every_objects_lift(tmp_path):
     s = summarize_run(tmp_path / "rec")
     assert abs(s["object_lift_m"]["big_box"] - 0.083) < 1e-9
     assert s["object_lift_m"]["ball"] == 0.0 and abs(s["object_lift_m"]["mug"] - 0.006) < 1e-9
+    np.testing.assert_allclose(s["object_moved_m"]["ball"], [0.0, 0.2, 0.0], atol=1e-12)
+    np.testing.assert_allclose(s["object_moved_m"]["big_box"], [0.0, 0.0, 0.05], atol=1e-12)
+    np.testing.assert_allclose(s["object_moved_m"]["mug"], [0.0, 0.0, 0.006], atol=1e-12)
     text = format_summary(s, tmp_path)
     assert "other objects lifted: big_box 8.3 cm" in text and "mug" not in text
+    assert ("objects moved, end against start: ball 20.0 cm (x +0.0, y +20.0, z +0.0), "
+            "big_box 5.0 cm (x +0.0, y +0.0, z +5.0)") in text, text

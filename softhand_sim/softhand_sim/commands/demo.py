@@ -22,6 +22,7 @@ from __future__ import annotations
 import argparse
 import copy
 import json
+import math
 import signal
 import subprocess
 import sys
@@ -259,6 +260,7 @@ def format_summary(s, out_dir):
 
     r = s.get("rates_hz", {})
     others = [(n, z) for n, z in s.get("object_lift_m", {}).items() if n != "ball" and z >= 0.01]
+    moved = [(n, [100 * v for v in d]) for n, d in s.get("object_moved_m", {}).items() if math.hypot(*d) >= 0.01]
     lines = [
         f"run {out_dir}",
         "  rates [Hz]: " + ", ".join(f"{k} {v:.1f}" for k, v in r.items()),
@@ -280,6 +282,9 @@ def format_summary(s, out_dir):
         f"  max active contacts: {s.get('max_contacts', 0)} (skin on skin: {s.get('max_skin_contacts', 0)})",
         f"  ball: lifted {100 * s.get('ball_lift_m', 0.0):.1f} cm (lifted >= 8 cm: {s.get('ball_lifted', False)})",
         *(["  other objects lifted: " + ", ".join(f"{n} {100 * z:.1f} cm" for n, z in others)] if others else []),
+        *(["  objects moved, end against start: " + ", ".join(
+            f"{n} {math.hypot(*d):.1f} cm (x {d[0]:+.1f}, y {d[1]:+.1f}, z {d[2]:+.1f})" for n, d in moved)]
+          if moved else []),
         f"  recording: {s.get('bag_messages', 0)} messages, {s.get('bag_mb', 0.0):.1f} MB, all values finite: "
         f"{s.get('all_finite', False)}",
     ]

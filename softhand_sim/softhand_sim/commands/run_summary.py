@@ -19,8 +19,9 @@ Measured, not reported by the nodes alone:
   orientation, knuckle, fingertip and phalanx direction errors and thumb-index gap error against
   the tracked hand (median, p95, max);
 - max active contacts from /hand/contacts (per hand by its `hand` field), and of them skin on
-  skin (`object` SKIN_OBJECT, sim parameter self_contact); ball lift from the engine side
-  /world/object_states;
+  skin (`object` SKIN_OBJECT, sim parameter self_contact); from the engine side
+  /world/object_states, every object's lift (its highest z less its first) and where it ended
+  against where it started (`object_moved_m`: the handover sets the ball down 20 cm on);
 - the hand measures in use (source default | file | auto, hand and palm sizes [mm], the sizing state
   while `hand_measures: auto` fits) from sim_node's last /diagnostics status that names them;
 - finiteness of every numeric field of every recorded message.
@@ -245,6 +246,7 @@ def summarize_run(bag_dir, bag_name="", exit_codes=None, input_bag=None, play_lo
     max_contacts = max_skin_contacts = 0
     max_contacts_hand, max_skin_hand = defaultdict(int), defaultdict(int)
     object_z = defaultdict(list)  # every object of the world's states: its lift (two_hand_lift lifts the big box)
+    object_xyz = {}  # name -> (first, last) position [m]
     all_finite = True
     count = 0
     with reader:
@@ -273,6 +275,8 @@ def summarize_run(bag_dir, bag_name="", exit_codes=None, input_bag=None, play_lo
                 if msg.points:
                     for name, tf in zip(names, msg.points[0].transforms):
                         object_z[name].append(tf.translation.z)
+                        xyz = (tf.translation.x, tf.translation.y, tf.translation.z)
+                        object_xyz[name] = (object_xyz.get(name, (xyz,))[0], xyz)
             elif conn.topic == "/diagnostics":
                 for status in msg.status:
                     if status_node(status.name).startswith(TRACKING_NODE):  # the last report: final counts
@@ -355,6 +359,7 @@ def summarize_run(bag_dir, bag_name="", exit_codes=None, input_bag=None, play_lo
         "ball_lift_m": float(max(ball_z) - ball_z[0]) if ball_z else 0.0,
         "ball_lifted": bool(ball_z and max(ball_z) - ball_z[0] >= 0.08),
         "object_lift_m": {name: float(max(z) - z[0]) for name, z in sorted(object_z.items())},
+        "object_moved_m": {name: [float(b - a) for a, b in zip(*ends)] for name, ends in sorted(object_xyz.items())},
         "all_finite": all_finite,
     })
     return summary
