@@ -79,16 +79,28 @@ def _smooth(u):
 # ---------------------------------------------------------------------------- handover
 HANDOVER_LIFT = 0.12      # [m] right wrist lift (the ball rises ~2 cm less: it hangs on the pads)
 HANDOVER_CARRY = np.array([0.0, 0.20, 0.0])  # [m] where the left hand sets the ball down, from its start
+LEFT_GRIP_BELOW = CAGE_SAG  # [m] the left grip aimed this far below the ball's centre, as the right
+                            # hand's wrist is placed CAGE_SAG low: the pads close a little under the
+                            # equator, and the ball settles onto them as the left hand takes its weight
 
 
 class Handover:
     """Right pinch -> lift -> left pinch from the other side -> right opens -> left carries the
-    ball HANDOVER_CARRY and sets it on the table -> opens. Times [s] in T; the left hand's grip is
-    aimed at the ball where it actually hangs at T["left_aim"] (the script looks, as a user would)."""
+    ball HANDOVER_CARRY at the height it took it and lowers it onto the table -> opens. Times [s]
+    in T; the left hand's grip is aimed at the ball where it actually hangs at T["left_aim"] (the
+    script looks, as a user would).
+
+    The carry is level, then straight down (l_carry0 -> l_over -> l_down), as a person sets a
+    thing down, and the left grip is aimed LEFT_GRIP_BELOW under the ball's centre. The ball
+    drops 1.3-1.7 cm when the left hand takes its weight (offline and through the nodes alike);
+    with the grip aimed at the centre and a diagonal path down it slipped out of the left grip
+    or met the table short of its spot and was dragged (through the nodes: 4.8-20.8 cm from the
+    spot in 6 of 29 runs); lowered on the spot, hanging lower only sets it down sooner."""
 
     T = dict(r_down=1.5, r_touch=2.5, r_squeeze=3.0, r_lift0=3.3, r_lift1=4.8, left_aim=4.9,
              l_reach=6.2, l_touch=7.0, l_squeeze=7.4, r_open0=7.8, r_open1=8.6, r_away=9.6,
-             l_carry0=9.0, l_carry1=10.8, l_open0=11.2, l_open1=12.0, l_away=13.0, end=13.5)
+             l_carry0=9.0, l_over=10.8, l_down=11.6, l_open0=12.0, l_open1=12.8, l_away=13.8, end=14.3)
+
 
     def __init__(self, scene):
         self.ball0 = np.array(scene.object("ball").pose[:3], float)
@@ -122,12 +134,13 @@ class Handover:
         T = self.T
         o, t, s = self.opened, self.touch, self.squeeze
         q = PALM_DOWN_FACING_BACK
-        grip = self._left_palm(ball_centre)
+        grip = self._left_palm(np.asarray(ball_centre, float) - [0.0, 0.0, LEFT_GRIP_BELOW])
         # set down: the ball centre one radius (+ the pads' sag) above the table at the target
         down = self._left_palm(self.target[:2].tolist() + [self.table_top + 0.04 + CAGE_SAG])
         self.left = (Keyframes().add(T["left_aim"], self._left_wait, o, q).add(T["l_reach"], grip, o, q)
                      .add(T["l_touch"], grip, t, q).add(T["l_squeeze"], grip, s, q)
-                     .add(T["l_carry0"], grip, s, q).add(T["l_carry1"], down, s, q)
+                     .add(T["l_carry0"], grip, s, q).add(T["l_over"], np.r_[down[:2], grip[2]], s, q)
+                     .add(T["l_down"], down, s, q)
                      .add(T["l_open0"], down, s, q).add(T["l_open1"], down, o, q)
                      .add(T["l_away"], down + [0.0, 0.0, 0.06], o, q))
 
