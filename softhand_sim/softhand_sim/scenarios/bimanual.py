@@ -101,7 +101,6 @@ class Handover:
              l_reach=6.2, l_touch=7.0, l_squeeze=7.4, r_open0=7.8, r_open1=8.6, r_away=9.6,
              l_carry0=9.0, l_over=10.8, l_down=11.6, l_open0=12.0, l_open1=12.8, l_away=13.8, end=14.3)
 
-
     def __init__(self, scene):
         self.ball0 = np.array(scene.object("ball").pose[:3], float)
         self.table_top = _table_top(scene)
