@@ -158,6 +158,32 @@ def test_loop_keeps_time_moving_and_stops_on_sigint(ros_env, tmp_path):
         assert "Traceback" not in proc.output()
 
 
+def test_a_shutdown_racing_a_publish_is_a_clean_stop(ros_env, tmp_path):
+    """Ctrl-C shuts ROS down from the signal handler at any moment, also between the replay's
+    rclpy.ok() check and its next publish, which then raises ("publisher's context is invalid";
+    once in a fresh clone's run, exit code 1). Made certain here: in a play_node process the
+    check always passes, ROS is shut down before play(): play() returns and logs the stop."""
+    import subprocess
+    import sys
+    import textwrap
+
+    tracker_bag(tmp_path / "bag", [0.01] * 9)
+    script = textwrap.dedent(f"""
+        import rclpy
+        from softhand_tracking.play_node import PlayNode
+        rclpy.init()
+        node = PlayNode({{"bag": {str(tmp_path / "bag")!r}}})
+        node._sleep_until = lambda wall_target: True   # the check passed just before the shutdown
+        rclpy.shutdown()                               # what the SIGINT handler does
+        node.play()
+        print("PLAY RETURNED", flush=True)
+    """)
+    proc = subprocess.run([sys.executable, "-c", script], env=ros_env, capture_output=True, text=True, timeout=60)
+    out = proc.stdout + proc.stderr
+    assert proc.returncode == 0 and "PLAY RETURNED" in out, out
+    assert "stopped: published 0 messages" in out and "Traceback" not in out, out
+
+
 def test_start_skips_the_beginning(ros_env, tmp_path):
     """--start S drops the messages of the first S seconds."""
     tracker_bag(tmp_path / "bag", [0.01] * 29)
