@@ -246,7 +246,7 @@ def summarize_run(bag_dir, bag_name="", exit_codes=None, input_bag=None, play_lo
     max_contacts = max_skin_contacts = 0
     max_contacts_hand, max_skin_hand = defaultdict(int), defaultdict(int)
     object_z = defaultdict(list)  # every object of the world's states: its lift (two_hand_lift lifts the big box)
-    object_xyz = {}  # name -> (first, last) position [m]
+    object_first, object_last = {}, {}  # name -> position [m] in the first / last state
     all_finite = True
     count = 0
     with reader:
@@ -275,8 +275,8 @@ def summarize_run(bag_dir, bag_name="", exit_codes=None, input_bag=None, play_lo
                 if msg.points:
                     for name, tf in zip(names, msg.points[0].transforms):
                         object_z[name].append(tf.translation.z)
-                        xyz = (tf.translation.x, tf.translation.y, tf.translation.z)
-                        object_xyz[name] = (object_xyz.get(name, (xyz,))[0], xyz)
+                        object_last[name] = (tf.translation.x, tf.translation.y, tf.translation.z)
+                        object_first.setdefault(name, object_last[name])
             elif conn.topic == "/diagnostics":
                 for status in msg.status:
                     if status_node(status.name).startswith(TRACKING_NODE):  # the last report: final counts
@@ -359,7 +359,8 @@ def summarize_run(bag_dir, bag_name="", exit_codes=None, input_bag=None, play_lo
         "ball_lift_m": float(max(ball_z) - ball_z[0]) if ball_z else 0.0,
         "ball_lifted": bool(ball_z and max(ball_z) - ball_z[0] >= 0.08),
         "object_lift_m": {name: float(max(z) - z[0]) for name, z in sorted(object_z.items())},
-        "object_moved_m": {name: [float(b - a) for a, b in zip(*ends)] for name, ends in sorted(object_xyz.items())},
+        "object_moved_m": {name: [float(b - a) for a, b in zip(object_first[name], last)]
+                           for name, last in sorted(object_last.items())},
         "all_finite": all_finite,
     })
     return summary

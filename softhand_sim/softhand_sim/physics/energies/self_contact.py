@@ -123,13 +123,13 @@ def _stiffness(c, x, tets, p_tet, p_bary, a_tet, a_bary, offset, normal, area, k
 
 
 @njit(cache=True)
-def _scatter(tet_slots, t, wa, wb, K, scale, values):
-    """values[block (a, b) of tet t] += scale wa_a wb_b K."""
+def _scatter(tet_slots, t, w, K, values):
+    """values[block (a, b) of tet t] += w_a w_b K."""
     for a in range(4):
-        if wa[a] == 0.0:
+        if w[a] == 0.0:
             continue
         for b in range(4):
-            s = scale * wa[a] * wb[b]
+            s = w[a] * w[b]
             if s == 0.0:
                 continue
             for i in range(3):
@@ -152,7 +152,7 @@ def add_hessian(x, tets, count, p_tet, p_bary, a_tet, a_bary, offset, normal, ar
         _stiffness(c, x, tets, p_tet, p_bary, a_tet, a_bary, offset, normal, area, kn, kf, kd, d0, slip, K)
         for a in range(4):
             cw[a] = a_bary[c, a] - p_bary[c, a]
-        _scatter(tet_slots, tp, cw, cw, K, 1.0, values)
+        _scatter(tet_slots, tp, cw, K, values)
 
 
 @njit(cache=True)
