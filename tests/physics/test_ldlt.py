@@ -57,6 +57,24 @@ def test_sliced_factorization_equals_the_full_one(system):
         np.testing.assert_allclose(a, b, rtol=1e-12, atol=0.0)
 
 
+def test_one_slice_factor_is_refreshed_in_place_from_the_values(system):
+    """A factorization done within one step (one slice: the coarse hand's) reads the values it is
+    given, with no snapshot, into the one buffer the solves use: every advance publishes the factor
+    of exactly those values, in the same arrays."""
+    m, values = system
+    f = pcg.Factor(m.dof_count, m.indptr, m.indices)
+    assert f.slices == 1
+    f.refresh(m.indptr, m.indices, 2.0 * values)
+    Lx = f.arrays[2]
+    for scale in (1.0, 3.0):
+        assert f.advance(scale * values)
+        fresh = pcg.Factor(m.dof_count, m.indptr, m.indices)
+        fresh.refresh(m.indptr, m.indices, scale * values)
+        assert f.arrays[2] is Lx
+        for a, b in zip(fresh.arrays[:5], f.arrays[:5]):
+            np.testing.assert_array_equal(a, b)
+
+
 def test_fill_reducing_order_beats_the_natural_order(system):
     """The minimum-degree ordering keeps L sparser than the identity ordering of the same pattern."""
     m, _ = system
