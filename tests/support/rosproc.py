@@ -27,7 +27,16 @@ import rclpy
 from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 
+from rclpy.qos import QoSProfile
+
 from softhand_sim.ros.common import PUB_QOS
+
+#: A test listener's QoS: the nodes' (reliable, volatile) with a deep reader history. With keep last
+#: 10 a reliable reader still drops the oldest samples when more than 10 arrive before this
+#: process's executor thread takes them (a busy test process: play_node at 100 Hz lost a few of 41
+#: frames once in a fresh clone's run), which is the listener's loss, not the node's.
+LISTEN_QOS = QoSProfile(history=PUB_QOS.history, depth=1000, reliability=PUB_QOS.reliability,
+                        durability=PUB_QOS.durability)
 
 VENV_BIN = Path(__file__).resolve().parents[2] / ".venv" / "bin"
 
@@ -145,7 +154,7 @@ class RosGraph:
         return proc
 
     # -- topics
-    def listen(self, topic: str, msg_type, qos=PUB_QOS) -> Collector:
+    def listen(self, topic: str, msg_type, qos=LISTEN_QOS) -> Collector:
         col = Collector()
         self.node.create_subscription(msg_type, topic, col, qos)
         return col
