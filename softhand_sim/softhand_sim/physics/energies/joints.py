@@ -58,13 +58,15 @@ def angular_rows(joint_type, flex_axis, abd_axis, limits, k_lock, k_limit):
 
 
 @njit(cache=True)
-def _spherical(j, body_x, body_q, parent, child, r_parent, r_child, k, g, H, want_hess):
-    """Eq. 6 for joint j: energy; writes g (12,), H (12,12) over (x_p, th_p, x_c, th_c)."""
+def _spherical(j, body_x, body_q, parent, child, r_parent, r_child, k, g, H, want_hess, Jm):
+    """Eq. 6 for joint j: energy; writes g (12,), H (12,12) over (x_p, th_p, x_c, th_c).
+    Jm: (3,12) scratch. The products are written out: as `@` on these small arrays (a BLAS call
+    each) they were most of the joints' time."""
     p, c = parent[j], child[j]
     rp = quat_to_matrix(body_q[p]) @ r_parent[j]
     rc = quat_to_matrix(body_q[c]) @ r_child[j]
     d = body_x[p] + rp - body_x[c] - rc
-    Jm = np.zeros((3, 12))
+    Jm[:, :] = 0.0
     for i in range(3):
         Jm[i, i] = 1.0
         Jm[i, 6 + i] = -1.0
@@ -75,16 +77,22 @@ def _spherical(j, body_x, body_q, parent, child, r_parent, r_child, k, g, H, wan
     Jm[0, 10], Jm[0, 11] = -rc[2], rc[1]
     Jm[1, 9], Jm[1, 11] = rc[2], -rc[0]
     Jm[2, 9], Jm[2, 10] = -rc[1], rc[0]
-    g[:] = k * (Jm.T @ d)
+    for a in range(12):
+        g[a] = k * (Jm[0, a] * d[0] + Jm[1, a] * d[1] + Jm[2, a] * d[2])
     if want_hess:
-        H[:, :] = k * (Jm.T @ Jm)
-    return 0.5 * k * np.dot(d, d)
+        for a in range(12):
+            for b in range(a, 12):
+                h = k * (Jm[0, a] * Jm[0, b] + Jm[1, a] * Jm[1, b] + Jm[2, a] * Jm[2, b])
+                H[a, b] = h
+                H[b, a] = h
+    return 0.5 * k * (d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
 
 
 @njit(cache=True)
 def _angular(r, body_q, parent, child, rest_rot, row_joint, row_axis, row_lo, row_hi, row_k,
              g, H, want_hess):
-    """One angular row: energy; writes g (12,), H (12,12) over (x_p, th_p, x_c, th_c)."""
+    """One angular row: (energy, active); writes g (12,), H (12,12) over (x_p, th_p, x_c, th_c)
+    when active (a locked axis off its lock, a limit passed); an inactive row writes nothing."""
     j = row_joint[r]
     p, c = parent[j], child[j]
     qa = quat_mul(body_q[c], quat_conj(rest_rot[j]))
@@ -96,11 +104,8 @@ def _angular(r, body_q, parent, child, rest_rot, row_joint, row_axis, row_lo, ro
         h = s - row_hi[r]
     elif s < row_lo[r]:
         h = s - row_lo[r]
-    g[:] = 0.0
-    if want_hess:
-        H[:, :] = 0.0
     if h == 0.0:
-        return 0.0
+        return 0.0, False
     ds = np.zeros(12)
     ds[9:12] = so3_left_jacobian_inv(phi).T @ a_w
     cr = np.cross(a_w, phi)
@@ -111,7 +116,7 @@ def _angular(r, body_q, parent, child, rest_rot, row_joint, row_axis, row_lo, ro
         for i in range(12):
             for jj in range(12):
                 H[i, jj] = k * ds[i] * ds[jj]
-    return 0.5 * k * h * h
+    return 0.5 * k * h * h, True
 
 
 @njit(cache=True)
@@ -121,18 +126,22 @@ def add_all(body_x, body_q, parent, child, r_parent, r_child, k_lin, rest_rot, r
     want_hess, the Hessian into CSR values via slots (J,12,12)."""
     g = np.empty(12)
     H = np.empty((12, 12))
+    Jm = np.empty((3, 12))
     e_sum = 0.0
     nj = parent.shape[0]
     for step in range(nj + row_joint.shape[0]):
         if step < nj:
             j = step
             e_sum += _spherical(j, body_x, body_q, parent, child, r_parent, r_child, k_lin,
-                                g, H, want_hess)
+                                g, H, want_hess, Jm)
         else:
             r = step - nj
             j = row_joint[r]
-            e_sum += _angular(r, body_q, parent, child, rest_rot, row_joint, row_axis, row_lo,
-                              row_hi, row_k, g, H, want_hess)
+            e, active = _angular(r, body_q, parent, child, rest_rot, row_joint, row_axis, row_lo,
+                                 row_hi, row_k, g, H, want_hess)
+            if not active:  # a limit not reached: nothing to add (most limit rows, most steps)
+                continue
+            e_sum += e
         op = body_dof0 + 6 * parent[j]
         oc = body_dof0 + 6 * child[j]
         for i in range(6):
