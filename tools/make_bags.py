@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Write the sample tracker bags of bags/ (deterministic: seeded noise and jitter, fixed stamps).
 
-    .venv/bin/python tools/make_bags.py [--out bags] [--only grasp_short ...]
+    .venv/bin/python tools/make_bags.py [--out bags] [--only grasp_short ...] [--position-noise MM]
 
 Each bag is a rosbag2 directory with mcap storage, of geometry_msgs/msg/PoseArray (26 OpenXR
 joints, header.frame_id "world", header.stamp = capture time = bag time). The one-hand bags have one
@@ -21,6 +21,7 @@ from pathlib import Path
 import yaml
 
 from softhand_sim.scenarios.bimanual import TWO_HAND_BAGS, mirror_poses, tracker_frames
+from softhand_sim.scenarios import tracker_bags
 from softhand_sim.scenarios.tracker_bags import SCENARIOS, sample
 from softhand_sim.paths import BAG_PARAMS
 from softhand_sim.ros.bagio import TYPESTORE, serialize, write_bag
@@ -93,7 +94,15 @@ def main(argv=None):
     parser.add_argument("--out", default=str(Path(__file__).resolve().parents[1] / "bags"))
     names = [*SCENARIOS, *MIRRORED, *TWO_HAND_BAGS]
     parser.add_argument("--only", nargs="*", choices=sorted(names), help="bags to write (default: all)")
+    parser.add_argument("--position-noise", type=float, default=None, metavar="MM",
+                        help="std of the white noise added to every joint coordinate of every frame [mm] "
+                             f"(default {tracker_bags.POSITION_NOISE * 1e3:g}, the shipped bags'; the Leap "
+                             "recordings carry 0.02-0.05 mm frame to frame)")
     args = parser.parse_args(argv)
+    if args.position_noise is not None:
+        if not args.position_noise >= 0.0:
+            parser.error(f"--position-noise {args.position_noise}: must be >= 0 [mm]")
+        tracker_bags.POSITION_NOISE = args.position_noise * 1e-3  # read by every bag's sampling
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     for name in args.only or names:

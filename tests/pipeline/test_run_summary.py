@@ -187,7 +187,7 @@ def test_summary_scores_each_hand_against_the_tracked_one(tmp_path):
     """The demo summary carries `softhand fidelity`'s figures per hand: on the lag tests' recording
     (the simulated layer 30 ms behind the tracked motion), the lag; on the one with no delay and the
     simulated palm 5 mm off, that offset as the palm error and the phalanx directions within the
-    motion between two tracker frames (0.8 deg at most); both printed."""
+    motion between two tracker frames (0.8 deg at most), and the tracker's noise; all printed."""
     from softhand_sim.commands.demo import format_summary
     from softhand_sim.commands.run_summary import summarize_run
     from tests.pipeline.test_lag import recording
@@ -198,6 +198,9 @@ def test_summary_scores_each_hand_against_the_tracked_one(tmp_path):
     f = offset["hands"]["right"]["fidelity"]
     assert abs(f["palm_mm"]["median"] - 5.0) < 0.01 and f["phalanx_direction_deg"]["median"] < 0.5, f
     assert "right hand vs the tracked one (median / p95): palm 5.0 / 5.0 mm" in format_summary(offset, tmp_path)
+    # and what the input's own noise is (this recording's tracked hand has none)
+    assert f["tracker_noise_mm"] < 0.01, f
+    assert "(tracker noise 0.00 mm per coordinate)" in format_summary(offset, tmp_path)
 
 
 def test_summary_reports_every_objects_lift_and_where_it_ended(tmp_path):

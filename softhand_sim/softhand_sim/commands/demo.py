@@ -251,8 +251,11 @@ FIDELITY_LABELS = {"palm_mm": ("palm", "mm"), "palm_deg": ("palm", "deg"), "knuc
 
 def fidelity_line(f: dict) -> str:
     """The printed summary's errors of one hand (run_summary's `fidelity`)."""
-    return ", ".join(f"{FIDELITY_LABELS[k][0]} {v['median']:.1f} / {v['p95']:.1f} {FIDELITY_LABELS[k][1]}"
+    line = ", ".join(f"{FIDELITY_LABELS[k][0]} {v['median']:.1f} / {v['p95']:.1f} {FIDELITY_LABELS[k][1]}"
                      for k, v in f.items() if k in FIDELITY_LABELS)
+    if f.get("tracker_noise_mm") is not None:  # what part of those errors the input's own noise is
+        line += f" (tracker noise {f['tracker_noise_mm']:.2f} mm per coordinate)"
+    return line
 
 
 def format_summary(s, out_dir):

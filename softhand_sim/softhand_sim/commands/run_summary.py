@@ -125,7 +125,10 @@ def _fidelity(bag_dir, side, bone_length):
         f = recorded_fidelity(bag_dir, bone_length, side)
     except (ValueError, BagError):
         return {}, {}
-    return f.get("lag_ms", {}), {k: f[k] for k in FIDELITY_KEYS if k in f and f[k].get("median") is not None}
+    errors = {k: f[k] for k in FIDELITY_KEYS if k in f and f[k].get("median") is not None}
+    if f.get("tracker_noise_mm") is not None:  # a number, not a median / p95 / max
+        errors["tracker_noise_mm"] = f["tracker_noise_mm"]
+    return f.get("lag_ms", {}), errors
 
 
 def steady_rate_hz(times, middle: float = 0.8):

@@ -21,7 +21,10 @@ Figures (positions in mm, angles in degrees; each as median and p95 over states 
   for HELD_S (`_still`: the joints within HELD_M of their mean over that window), against the tracked
   directions averaged over the window (tracker noise averaged out): what is left once the hand
   has settled, e.g. an offset the feedback to the simulated hand leaves (`held_states`,
-  `held_phalanx_deg`).
+  `held_phalanx_deg`);
+* tracker noise (`tracker_noise_mm`, of the input alone): the white noise per joint coordinate
+  from frame to frame (`tracker_noise`), to read the other figures by: a simulated hand follows
+  that noise, and the errors and lags of a noisy input are partly its.
 """
 from __future__ import annotations
 
@@ -56,6 +59,20 @@ def _still(window: np.ndarray) -> bool:
     drift = np.linalg.norm(window[half:].mean(axis=0) - window[:half].mean(axis=0), axis=1).max()
     spread = np.percentile(np.linalg.norm(window - window.mean(axis=0), axis=2), 95)
     return bool(drift < 0.5 * HELD_M and spread < HELD_M)
+
+
+def tracker_noise(track_joints) -> float:
+    """Std [m] of the white noise per coordinate of the tracked joints (n, 26, 3|7), frame to
+    frame: the second difference of a white noise of std s has std s sqrt(6); taken robustly
+    (1.4826 x the median absolute deviation over the frames) per joint and coordinate, then the
+    median of those. Smooth motion adds its own second differences (a dt^2: 0.1 mm for 1 m/s^2 at
+    100 Hz), so on a real recording this is an upper bound. NaN for fewer than 3 frames."""
+    j = np.asarray(track_joints, dtype=np.float64)[:, :, :3]
+    if len(j) < 3:
+        return float("nan")
+    d2 = j[2:] - 2.0 * j[1:-1] + j[:-2]
+    mad = np.median(np.abs(d2 - np.median(d2, axis=0)), axis=0)
+    return float(np.median(1.4826 * mad) / np.sqrt(6.0))
 
 
 def simulated_points(bones: np.ndarray, bone_length: np.ndarray):
@@ -114,4 +131,5 @@ def fidelity(track_t, track_joints, sim_t, sim_bones, bone_length) -> dict:
                                                if pinch.any() else None),
         held_states=len(held),
         held_phalanx_deg=_stats(held),
+        tracker_noise_mm=round(tracker_noise(joints) * 1e3, 3),
     )
