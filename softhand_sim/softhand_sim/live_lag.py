@@ -14,9 +14,9 @@ time shift that best aligns the phalanx directions, and the palm position), so t
 watched live (the Foxglove layout plots it) as well as measured afterwards.
 
 A lag is only defined while the hand moves: a window in which the tracked phalanx directions spread
-less than MIN_TURN_RAD from their mean (90th percentile, median over the bones, after a moving
-average over SMOOTH frames: tracker noise of 1.5 mm alone spreads them about 4 degrees) reports
-NaN, and likewise the palm's lag when the palm spreads less than MIN_TRAVEL_M. The intermediate
+less than MIN_TURN_RAD from their mean reports NaN, and likewise the palm's lag when the palm
+spreads less than MIN_TRAVEL_M (commands/lag.py's rule and `spread`, which a whole recording's
+lag follows too). The intermediate
 layer (250 Hz) is kept at INTERMEDIATE_HZ, enough for a lag found to the millisecond by the
 search's interpolation of the tracked frames, at a quarter of the cost.
 """
@@ -27,30 +27,12 @@ from collections import deque
 
 import numpy as np
 
-from softhand_sim.commands.lag import Series, layer_lag, quat_rotate_x
+from softhand_sim.commands.lag import MIN_TRAVEL_M, MIN_TURN_RAD, Series, layer_lag, spread
 
 WINDOW_S = 2.0          # [s] the stretch of each layer aligned per report
-MIN_TURN_RAD = 0.1      # [rad] spread of the tracked phalanx directions over the window
-SMOOTH = 7              # tracked frames averaged before the spread is taken
-MIN_TRAVEL_M = 0.01     # [m] spread of the tracked palm position over the window
 INTERMEDIATE_HZ = 60.0  # [Hz] intermediate bones kept at most this often
 SHIFT_RANGE_MS = (-40.0, 160.0)  # [ms] lags searched (the recording tool searches -60..250)
 LAYERS = ("tracked", "intermediate", "sim")
-
-
-def spread(ref: Series) -> tuple[float, float]:
-    """(phalanx spread [rad], palm spread [m]) of a window of tracked bones (module doc)."""
-    dirs = quat_rotate_x(ref.poses[:, 1:, 3:])                       # (n, 15, 3)
-    if len(dirs) > SMOOTH:  # a moving average first: noise alone then spreads them ~4 deg, not ~9
-        kernel = np.ones(SMOOTH) / SMOOTH
-        dirs = np.apply_along_axis(lambda x: np.convolve(x, kernel, mode="valid"), 0, dirs)
-        dirs /= np.linalg.norm(dirs, axis=-1, keepdims=True)
-    mean = dirs.mean(axis=0)
-    mean /= np.linalg.norm(mean, axis=-1, keepdims=True)
-    angles = np.arccos(np.clip(np.sum(dirs * mean, axis=-1), -1.0, 1.0))
-    palm = ref.poses[:, 0, :3]
-    return (float(np.median(np.percentile(angles, 90, axis=0))),
-            float(np.percentile(np.linalg.norm(palm - palm.mean(axis=0), axis=-1), 90)))
 
 
 class LiveLag:

@@ -65,6 +65,17 @@ def test_injected_delays_are_found(tmp_path):
     assert r["sim"]["phalanx_deg"]["p95"] > r["intermediate"]["phalanx_deg"]["p95"]
 
 
+def test_a_still_palm_has_no_palm_lag(tmp_path):
+    """small_hand's motion opens and closes the fingers with the palm held still: the phalanxes'
+    30 ms are found, the palm's lag is not defined (NaN; printed "still"; a best shift of a still
+    palm is that of the simulated palm's own wobble), its tracked travel reported as 0 mm."""
+    r = lag_report(recording(tmp_path / "rec", scenario="small_hand", duration=6.0))
+    assert r["sim"]["lag_phalanx_ms"] == pytest.approx(30.0, abs=1.0)
+    assert np.isnan(r["sim"]["lag_palm_ms"]) and np.isnan(r["intermediate"]["lag_palm_ms"])
+    assert r["sim"]["tracked_travel_mm"] < 0.01 and r["sim"]["tracked_turn_deg"] > 20.0
+    assert "palm    still" in format_report(r)
+
+
 def test_injected_offset_is_the_palm_error(tmp_path):
     """No delay, the sim palm 5 mm off: palm error 5 mm (median and max), no phalanx error, no lag."""
     r = lag_report(recording(tmp_path / "rec", delays=(0.0, 0.0), palm_offset=(0.0, 0.003, 0.004)))

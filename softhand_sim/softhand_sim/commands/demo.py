@@ -249,6 +249,12 @@ FIDELITY_LABELS = {"palm_mm": ("palm", "mm"), "palm_deg": ("palm", "deg"), "knuc
                    "pinch_gap_error_mm": ("pinch gap", "mm")}
 
 
+def lag_text(ms) -> str:
+    """A lag [ms] as printed: "still" where it is not defined (that part of the tracked hand hardly
+    moved: commands/lag.py's MIN_TRAVEL_M, MIN_TURN_RAD)."""
+    return "still" if ms is None or not math.isfinite(ms) else f"{ms:.1f}"
+
+
 def fidelity_line(f: dict) -> str:
     """The printed summary's errors of one hand (run_summary's `fidelity`)."""
     line = ", ".join(f"{FIDELITY_LABELS[k][0]} {v['median']:.1f} / {v['p95']:.1f} {FIDELITY_LABELS[k][1]}"
@@ -277,7 +283,7 @@ def format_summary(s, out_dir):
             f"max contacts {h['max_contacts']}"
           for side, h in s.get("hands", {}).items() if len(s.get("hands", {})) > 1),
         *(f"  {side} hand lag behind the tracked one (phalanx / palm): "
-          + ", ".join(f"{layer} {v['phalanx']:.1f} / {v['palm']:.1f} ms" for layer, v in h["lag_ms"].items())
+          + ", ".join(f"{layer} {lag_text(v['phalanx'])} / {lag_text(v['palm'])} ms" for layer, v in h["lag_ms"].items())
           for side, h in s.get("hands", {}).items() if h.get("lag_ms")),
         *(f"  {side} hand vs the tracked one (median / p95): " + fidelity_line(h["fidelity"])
           for side, h in s.get("hands", {}).items() if h.get("fidelity")),

@@ -106,8 +106,10 @@ def recorded_fidelity(bag, bone_length, side="right"):
     st, sb = _poses(bag, hand_topic(side, "bones"))
     figures = fidelity(tt[order], tj[order], st, sb, bone_length)
     lag = lag_report(bag, hand=side)
-    figures["lag_ms"] = {layer: {"phalanx": round(lag[layer]["lag_phalanx_ms"], 1),
-                                 "palm": round(lag[layer]["lag_palm_ms"], 1)}
+    def ms(v):  # None where the lag is not defined (that part of the tracked hand hardly moved)
+        return round(v, 1) if np.isfinite(v) else None
+
+    figures["lag_ms"] = {layer: {"phalanx": ms(lag[layer]["lag_phalanx_ms"]), "palm": ms(lag[layer]["lag_palm_ms"])}
                          for layer in ("intermediate", "sim") if layer in lag}
     figures["lag_time_base"] = lag["time_base"]
     if "palm_deg" in lag.get("sim", {}):

@@ -12,7 +12,8 @@ intermediate layer and for the simulated skeleton each:
   bones linearly interpolated between frames; frames further apart than MAX_GAP_S are not
   bridged). Separately for the 15 phalanx directions (each bone's +x axis; mean squared angle)
   and the palm position (mean squared distance); searched on a 1 ms grid over SHIFT_RANGE_MS and
-  refined by a parabola through the best three;
+  refined by a parabola through the best three; NaN for what the tracked hand hardly moves (the
+  palm of a bag that only opens and closes the fingers: MIN_TRAVEL_M, MIN_TURN_RAD);
 * errors at zero shift: phalanx direction angle, palm position and palm orientation (median /
   p95 / max), and the phalanx angle p95 at the best shift (what is left once the lag is removed);
 * tracker frames: recorded, and that hand's tracking node's received / accepted / rejected (its
@@ -44,6 +45,13 @@ SHIFT_RANGE_MS = (-60.0, 250.0)  # [ms] lags searched (negative: the layer leads
 COARSE_MS = 5.0                  # [ms] the search's first grid; then 1 ms steps around the best
 MAX_GAP_S = 0.05                 # [s] tracked frames further apart are not interpolated across
 CLOCK_MISMATCH_S = 1.0           # [s] tracker vs output stamps further apart: not one clock
+# A lag is only defined for what moves (the best shift of a still signal is that of the noise or
+# of the simulated hand's own wobble about it): the phalanx lag needs the tracked phalanx
+# directions to spread MIN_TURN_RAD from their mean, the palm's the tracked palm MIN_TRAVEL_M
+# (`spread`; else NaN). The same rule holds for the live lag of a 2 s window (live_lag.py).
+MIN_TURN_RAD = 0.1      # [rad] spread of the tracked phalanx directions
+SMOOTH = 7              # tracked frames averaged before the spread is taken
+MIN_TRAVEL_M = 0.01     # [m] spread of the tracked palm position
 
 
 @dataclass
@@ -116,11 +124,31 @@ def _stats(x: np.ndarray, scale: float) -> dict:
             "max": scale * float(np.max(x))}
 
 
+def spread(ref: Series) -> tuple[float, float]:
+    """(phalanx spread [rad], palm spread [m]) of tracked bones: the 90th percentile of each phalanx
+    direction's angle from its mean (after a moving average over SMOOTH frames: tracker noise of
+    1.5 mm alone then spreads them about 4 degrees, not 9), the median over the phalanxes; and the
+    90th percentile of the palm's distance from its mean position."""
+    dirs = quat_rotate_x(ref.poses[:, 1:, 3:])                       # (n, 15, 3)
+    if len(dirs) > SMOOTH:  # a moving average first: noise alone then spreads them ~4 deg, not ~9
+        kernel = np.ones(SMOOTH) / SMOOTH
+        dirs = np.apply_along_axis(lambda x: np.convolve(x, kernel, mode="valid"), 0, dirs)
+        dirs /= np.linalg.norm(dirs, axis=-1, keepdims=True)
+    mean = dirs.mean(axis=0)
+    mean /= np.linalg.norm(mean, axis=-1, keepdims=True)
+    angles = np.arccos(np.clip(np.sum(dirs * mean, axis=-1), -1.0, 1.0))
+    palm = ref.poses[:, 0, :3]
+    return (float(np.median(np.percentile(angles, 90, axis=0))),
+            float(np.percentile(np.linalg.norm(palm - palm.mean(axis=0), axis=-1), 90)))
+
+
 def layer_lag(ref: Series, out: Series, shift_range_ms=SHIFT_RANGE_MS) -> dict:
     """Lag and error of one layer `out` against the tracked bones `ref` (module docstring).
 
-    Returns lag_phalanx_ms, lag_palm_ms, phalanx_deg / palm_mm / palm_deg (median, p95, max at zero
-    shift), phalanx_deg_p95_at_lag, and samples (the output samples compared at zero shift)."""
+    Returns lag_phalanx_ms, lag_palm_ms (NaN where the tracked phalanxes / palm hardly move:
+    `spread`, reported as tracked_turn_deg, tracked_travel_mm), phalanx_deg / palm_mm / palm_deg
+    (median, p95, max at zero shift), phalanx_deg_p95_at_lag, and samples (the output samples
+    compared at zero shift)."""
     lo, hi = shift_range_ms
     out_dirs = quat_rotate_x(out.poses[:, 1:, 3:])
     out_palm = out.poses[:, 0, :3]
@@ -153,13 +181,21 @@ def layer_lag(ref: Series, out: Series, shift_range_ms=SHIFT_RANGE_MS) -> dict:
         best = coarse[int(np.nanargmin(c))]
         fine = np.arange(max(lo, best - COARSE_MS), min(hi, best + COARSE_MS) + 0.5, 1.0)
         res[key] = _refine(fine, np.array([cost(float(s))[i] for s in fine]))
+    turn, travel = spread(ref)
+    res["tracked_turn_deg"], res["tracked_travel_mm"] = float(np.degrees(turn)), 1e3 * travel
+    if turn < MIN_TURN_RAD:
+        res["lag_phalanx_ms"] = float("nan")
+    if travel < MIN_TRAVEL_M:
+        res["lag_palm_ms"] = float("nan")
     dirs, palm, q, ok = _interp(ref, out.t)
     ang = np.degrees(_angle(out_dirs[ok], dirs[ok]))
     res["phalanx_deg"] = _stats(ang.reshape(-1), 1.0)
     res["palm_mm"] = _stats(np.linalg.norm(out_palm[ok] - palm[ok], axis=-1), 1e3)
     res["palm_deg"] = _stats(quat_angle(out.poses[ok, 0, 3:], q[ok]), np.degrees(1.0))
-    dirs, _, _, ok = _interp(ref, out.t - 1e-3 * res["lag_phalanx_ms"])
-    res["phalanx_deg_p95_at_lag"] = _stats(np.degrees(_angle(out_dirs[ok], dirs[ok])).reshape(-1), 1.0)["p95"]
+    res["phalanx_deg_p95_at_lag"] = float("nan")
+    if np.isfinite(res["lag_phalanx_ms"]):
+        dirs, _, _, ok = _interp(ref, out.t - 1e-3 * res["lag_phalanx_ms"])
+        res["phalanx_deg_p95_at_lag"] = _stats(np.degrees(_angle(out_dirs[ok], dirs[ok])).reshape(-1), 1.0)["p95"]
     return res
 
 
@@ -268,7 +304,8 @@ def format_report(r: dict, title: str = "") -> str:
             lines.append(f"  {name}: not enough overlapping samples")
             continue
         pd, pm, pa = x["phalanx_deg"], x["palm_mm"], x["palm_deg"]
-        lines.append(f"  {name:12s} lag: phalanx {x['lag_phalanx_ms']:6.1f} ms, palm {x['lag_palm_ms']:6.1f} ms | "
+        lag = {k: "still" if not np.isfinite(x[k]) else f"{x[k]:.1f} ms" for k in ("lag_phalanx_ms", "lag_palm_ms")}
+        lines.append(f"  {name:12s} lag: phalanx {lag['lag_phalanx_ms']:>8s}, palm {lag['lag_palm_ms']:>8s} | "
                      f"phalanx {pd['median']:.1f}/{pd['p95']:.1f}/{pd['max']:.1f} deg (median/p95/max; p95 at lag "
                      f"{x['phalanx_deg_p95_at_lag']:.1f}), palm {pm['median']:.1f}/{pm['p95']:.1f}/{pm['max']:.1f} mm, "
                      f"{pa['median']:.1f}/{pa['p95']:.1f}/{pa['max']:.1f} deg")
