@@ -141,6 +141,10 @@ SIM = {
     "gravity_tissue": P(bool, False, "-", "apply gravity to the tissue nodes (off: same reason; objects keep gravity)"),
     "gravity_objects": P(bool, True, "-", "apply gravity to the hand-side object instances"),
     "cg_tolerance": P(float, 1.0e-5, "-", "relative residual tolerance of PCG (paper: 1e-5)", 1e-12, 1e-1),
+    "cg_velocity_floor": P(float, 1.0e-5, "m/s", "PCG also stops once no node's velocity error can exceed this "
+                           "(its energy-norm bound, pcg.pcg): the relative tolerance alone asks 1e-5 of a "
+                           "right-hand side that vanishes in a held pose (12 iterations per step of a held fist "
+                           "for residuals of 1e-15 N s); 1e-5 m/s is 0.17 um per 60 Hz step; 0: off", 0.0),
     "cg_max_iterations": P(int, 200, "-", "PCG iteration cap: bounds the cost of a step", 1, 100000),
     "preconditioner": P(str, "factor", "-", "PCG preconditioner: factor (sparse block LDL^T of the system matrix, "
                         "refreshed over several steps), jacobi (the paper's) or block_jacobi (3x3 node, 6x6 body blocks)",

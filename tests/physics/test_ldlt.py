@@ -106,6 +106,44 @@ def test_factor_pcg_converges_in_one_iteration_with_a_fresh_factor(system):
     assert np.linalg.norm(_matrix(m, values) @ x - b) <= 1e-9 * np.linalg.norm(b)
 
 
+def test_velocity_floor_stops_pcg_with_every_node_within_it(system):
+    """A = the CSR matrix plus a stiff low-rank term (skin-skin contact rows, which the factor does
+    not see), b small as in a held pose: to the relative tolerance alone PCG iterates on; with the
+    energy floor m_min v^2 it stops sooner, and against the exact solution (dense) no node's
+    velocity error exceeds v."""
+    m, values = system
+    s = Solver(m)
+    f = pcg.Factor(m.dof_count, m.indptr, m.indices)
+    f.refresh(m.indptr, m.indices, values)
+    rng = np.random.default_rng(7)
+    C = 40
+    nodes = rng.integers(0, m.node_count, (C, 8)).astype(np.int32)
+    weights = np.concatenate([-rng.dirichlet(np.ones(4), C), rng.dirichlet(np.ones(4), C)], axis=1)
+    K = np.array([1e4 * (np.eye(3) + 0.3 * np.outer(v, v)) for v in rng.normal(size=(C, 3))])
+    A = _matrix(m, values).toarray()
+    for c in range(C):
+        L = np.zeros((3, m.dof_count))
+        for a in range(8):
+            L[:, 3 * nodes[c, a]:3 * nodes[c, a] + 3] += weights[c, a] * np.eye(3)
+        A += L.T @ K[c] @ L
+    b = 1e-7 * rng.normal(size=m.dof_count)
+    exact = np.linalg.solve(A, b)
+    v_floor = 1e-5
+    floor = m.node_mass.min() * v_floor ** 2
+    runs = {}
+    for name, e_floor in (("relative only", 0.0), ("floor", floor)):
+        x = np.zeros_like(b)
+        it, res, cap = pcg.pcg(m.indptr, m.indices, values, b, x, 1e-5, 200, pcg.PRECOND_FACTOR,
+                               m.diag_slot, m.node_slots, m.body_slots, m.body_dof0, s._diag_inv,
+                               s._node_inv, s._body_inv, s._r, s._z, s._p, s._Ap, f.arrays,
+                               low_rank=(C, nodes, weights, K), energy_floor=e_floor)
+        err = np.linalg.norm((x - exact)[:m.body_dof0].reshape(-1, 3), axis=1)
+        runs[name] = (it, err.max())
+    print(runs)
+    assert runs["floor"][0] < runs["relative only"][0]
+    assert runs["floor"][1] <= v_floor and runs["floor"][1] > runs["relative only"][1]
+
+
 def test_factor_of_object_rows_with_and_without_contact():
     """Object bodies couple to every surface node through the pattern, but only contacts fill those
     entries: rows (and their reach) left zero are skipped by the numeric factorization. Solves

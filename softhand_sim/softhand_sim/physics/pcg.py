@@ -242,17 +242,21 @@ NO_LOW_RANK = (0, np.zeros((0, 8), np.int32), np.zeros((0, 8)), np.zeros((0, 3, 
 
 
 def pcg(indptr, indices, values, b, x, tol, max_iter, kind, diag_slot, node_slots, body_slots,
-        body_dof0, diag_inv, node_inv, body_inv, r, z, p, Ap, fac, triplets=False, low_rank=NO_LOW_RANK):
+        body_dof0, diag_inv, node_inv, body_inv, r, z, p, Ap, fac, triplets=False, low_rank=NO_LOW_RANK,
+        energy_floor=0.0):
     """Solve A x = b in place from the warm start x, A = the CSR matrix plus the low-rank term
     low_rank = (rows, nodes (C,8), weights (C,8), K (C,3,3)): sum over its first `rows` rows of
     L K L^T, L (3 x n) the row's weights on its nodes' 3 DOFs each (energies/self_contact.
     gauss_newton_rows: skin-skin contacts coupling two tets, outside the CSR pattern; the
-    preconditioner is built from the CSR matrix alone). Stops when ||r|| <= tol ||b|| or after max_iter
-    iterations. fac: Factor.arrays (used by PRECOND_FACTOR). triplets: the pattern is made of
+    preconditioner is built from the CSR matrix alone). Stops when ||r|| <= tol ||b||, or when
+    r^T z <= energy_floor (z = P^-1 r: the error e = A^-1 r in A's energy norm, e^T A e, which P <= A
+    overestimates; A = M + dt^2 H >= M, so e^T M e <= energy_floor: with energy_floor = m v^2 the
+    velocity error's mass-weighted RMS is below v), or after max_iter iterations. fac: Factor.arrays (used by PRECOND_FACTOR). triplets: the pattern is made of
     column triplets (triplet_pattern; faster products). Returns (iterations, relative residual
     ||r||/||b||, hit_cap)."""
     return _pcg(indptr, indices, values, b, x, tol, max_iter, kind, diag_slot, node_slots, body_slots,
-                body_dof0, diag_inv, node_inv, body_inv, r, z, p, Ap, fac, triplets, *low_rank)
+                body_dof0, diag_inv, node_inv, body_inv, r, z, p, Ap, fac, triplets, *low_rank,
+                float(energy_floor))
 
 
 @njit(cache=True)
@@ -284,7 +288,7 @@ def _matvec(indptr, indices, values, x, out, triplets, rows, nodes, weights, K):
 @njit(cache=True)
 def _pcg(indptr, indices, values, b, x, tol, max_iter, kind, diag_slot, node_slots, body_slots,
          body_dof0, diag_inv, node_inv, body_inv, r, z, p, Ap, fac, triplets, lr_rows, lr_nodes,
-         lr_weights, lr_K):
+         lr_weights, lr_K, energy_floor):
     n = b.shape[0]
     if kind == PRECOND_JACOBI:
         for i in range(n):
@@ -304,6 +308,8 @@ def _pcg(indptr, indices, values, b, x, tol, max_iter, kind, diag_slot, node_slo
     _apply_precond(kind, r, z, diag_inv, node_inv, body_inv, body_dof0, fac)
     p[:] = z
     rz = np.dot(r, z)
+    if rz <= energy_floor:
+        return 0, rnorm / bnorm, False
     it = 0
     while it < max_iter:
         _matvec(indptr, indices, values, p, Ap, triplets, lr_rows, lr_nodes, lr_weights, lr_K)
@@ -322,6 +328,8 @@ def _pcg(indptr, indices, values, b, x, tol, max_iter, kind, diag_slot, node_slo
             return it, rnorm / bnorm, False
         _apply_precond(kind, r, z, diag_inv, node_inv, body_inv, body_dof0, fac)
         rz_new = np.dot(r, z)
+        if rz_new <= energy_floor:
+            return it, rnorm / bnorm, False
         beta = rz_new / rz
         rz = rz_new
         for i in range(n):

@@ -131,6 +131,14 @@ class Solver:
                                       groups=hand_block_groups(m))
                        if self.precond == pcg_mod.PRECOND_FACTOR else pcg_mod.Factor(model.dof_count))
         self._last_iters = 0
+        # PCG's absolute floor (pcg.pcg): e^T M e <= m_min v^2 bounds every node's velocity error
+        # by v (m_i e_i^2 <= m_min v^2, m_i >= m_min), whatever the other masses (a clamp made of
+        # an immovable 1e12 kg node, as tests do, leaves it alone). r^T z bounds e^T A e only for a
+        # preconditioner P <= A: the factor of this step's own CSR matrix (one slice; A adds the
+        # low-rank term to it), not Jacobi's diagonal nor a factor of an older step (the fine mesh)
+        m_min = float(m.node_mass.min()) if m.node_count else 0.0
+        exact = self.precond == pcg_mod.PRECOND_FACTOR and self.factor.slices == 1
+        self.cg_energy_floor = max(m_min, 0.0) * float(p["cg_velocity_floor"]) ** 2 if exact else 0.0
         n, nnz = m.dof_count, len(m.indices)
         self.grad = np.zeros(n)
         self.values = np.zeros(nnz)
@@ -226,7 +234,7 @@ class Solver:
             m.indptr, m.indices, self.values, self.rhs, state.v, self.cg_tol, self.cg_max_iter,
             self.precond, m.diag_slot, m.node_slots, m.body_slots, m.body_dof0, self._diag_inv,
             self._node_inv, self._body_inv, self._r, self._z, self._p, self._Ap, self.factor.arrays,
-            self._triplets, low_rank)
+            self._triplets, low_rank, self.cg_energy_floor)
         t4 = clock()
         self._last_iters = iters
         _advance(state.node_x, state.v, state.body_x, state.body_q, state.body_pose,
