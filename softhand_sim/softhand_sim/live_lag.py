@@ -16,9 +16,9 @@ watched live (the Foxglove layout plots it) as well as measured afterwards.
 A lag is only defined while the hand moves: a window in which the tracked phalanx directions spread
 less than MIN_TURN_RAD from their mean reports NaN, and likewise the palm's lag when the palm
 spreads less than MIN_TRAVEL_M (commands/lag.py's rule and `spread`, which a whole recording's
-lag follows too). The intermediate
-layer (250 Hz) is kept at INTERMEDIATE_HZ, enough for a lag found to the millisecond by the
-search's interpolation of the tracked frames, at a quarter of the cost.
+lag follows too). The intermediate layer (250 Hz) is kept at INTERMEDIATE_HZ, enough for a lag
+found to the millisecond by the search's interpolation of the tracked frames, at a quarter of
+the cost.
 """
 from __future__ import annotations
 
