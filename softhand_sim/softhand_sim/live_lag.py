@@ -88,9 +88,8 @@ class LiveLag:
             series = self._series(layer)
             if series is None:
                 continue
-            r = layer_lag(ref, series, SHIFT_RANGE_MS)
-            if turn >= MIN_TURN_RAD:
-                out[key] = round(r["lag_phalanx_ms"], 1)
-            if palm_key and travel >= MIN_TRAVEL_M:
+            r = layer_lag(ref, series, SHIFT_RANGE_MS, ref_spread=(turn, travel))  # NaN where still
+            out[key] = round(r["lag_phalanx_ms"], 1)
+            if palm_key:
                 out[palm_key] = round(r["lag_palm_ms"], 1)
         return out

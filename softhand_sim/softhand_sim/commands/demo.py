@@ -249,12 +249,6 @@ FIDELITY_LABELS = {"palm_mm": ("palm", "mm"), "palm_deg": ("palm", "deg"), "knuc
                    "pinch_gap_error_mm": ("pinch gap", "mm")}
 
 
-def lag_text(ms) -> str:
-    """A lag [ms] as printed: "still" where it is not defined (that part of the tracked hand hardly
-    moved: commands/lag.py's MIN_TRAVEL_M, MIN_TURN_RAD)."""
-    return "still" if ms is None or not math.isfinite(ms) else f"{ms:.1f}"
-
-
 def fidelity_line(f: dict) -> str:
     """The printed summary's errors of one hand (run_summary's `fidelity`)."""
     line = ", ".join(f"{FIDELITY_LABELS[k][0]} {v['median']:.1f} / {v['p95']:.1f} {FIDELITY_LABELS[k][1]}"
@@ -265,6 +259,7 @@ def fidelity_line(f: dict) -> str:
 
 
 def format_summary(s, out_dir):
+    from softhand_sim.commands.lag import lag_text
     from softhand_sim.commands.run_summary import hand_measures_line
 
     r = s.get("rates_hz", {})

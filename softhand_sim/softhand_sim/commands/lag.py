@@ -142,8 +142,15 @@ def spread(ref: Series) -> tuple[float, float]:
             float(np.percentile(np.linalg.norm(palm - palm.mean(axis=0), axis=-1), 90)))
 
 
-def layer_lag(ref: Series, out: Series, shift_range_ms=SHIFT_RANGE_MS) -> dict:
+def lag_text(ms, unit: str = "") -> str:
+    """A lag [ms] as printed (with `unit` after a number): "still" where it is not defined (NaN,
+    or null from JSON: that part of the tracked hand hardly moved, `spread`)."""
+    return "still" if ms is None or not np.isfinite(ms) else f"{ms:.1f}{unit}"
+
+
+def layer_lag(ref: Series, out: Series, shift_range_ms=SHIFT_RANGE_MS, ref_spread=None) -> dict:
     """Lag and error of one layer `out` against the tracked bones `ref` (module docstring).
+    ref_spread: spread(ref) when the caller has it (every layer of one recording shares its ref).
 
     Returns lag_phalanx_ms, lag_palm_ms (NaN where the tracked phalanxes / palm hardly move:
     `spread`, reported as tracked_turn_deg, tracked_travel_mm), phalanx_deg / palm_mm / palm_deg
@@ -181,7 +188,7 @@ def layer_lag(ref: Series, out: Series, shift_range_ms=SHIFT_RANGE_MS) -> dict:
         best = coarse[int(np.nanargmin(c))]
         fine = np.arange(max(lo, best - COARSE_MS), min(hi, best + COARSE_MS) + 0.5, 1.0)
         res[key] = _refine(fine, np.array([cost(float(s))[i] for s in fine]))
-    turn, travel = spread(ref)
+    turn, travel = spread(ref) if ref_spread is None else ref_spread
     res["tracked_turn_deg"], res["tracked_travel_mm"] = float(np.degrees(turn)), 1e3 * travel
     if turn < MIN_TURN_RAD:
         res["lag_phalanx_ms"] = float("nan")
@@ -285,10 +292,11 @@ def lag_report(path, hand: str = "right", time_base: str = "auto") -> dict:
     report["frames"]["valid"] = int(ref.t.size)
     if ref.t.size < 2:  # nothing to compare with (no valid tracker frame, or one)
         return report
+    ref_spread = spread(ref)
     for name, topic in layers.items():
         if topic in data:
             s = data[topic]
-            report[name] = layer_lag(ref, _sorted(s[col], s[2]))
+            report[name] = layer_lag(ref, _sorted(s[col], s[2]), ref_spread=ref_spread)
             report[name]["messages"] = int(len(s[0]))
     return report
 
@@ -304,8 +312,8 @@ def format_report(r: dict, title: str = "") -> str:
             lines.append(f"  {name}: not enough overlapping samples")
             continue
         pd, pm, pa = x["phalanx_deg"], x["palm_mm"], x["palm_deg"]
-        lag = {k: "still" if not np.isfinite(x[k]) else f"{x[k]:.1f} ms" for k in ("lag_phalanx_ms", "lag_palm_ms")}
-        lines.append(f"  {name:12s} lag: phalanx {lag['lag_phalanx_ms']:>8s}, palm {lag['lag_palm_ms']:>8s} | "
+        lines.append(f"  {name:12s} lag: phalanx {lag_text(x['lag_phalanx_ms'], ' ms'):>8s}, palm "
+                     f"{lag_text(x['lag_palm_ms'], ' ms'):>8s} | "
                      f"phalanx {pd['median']:.1f}/{pd['p95']:.1f}/{pd['max']:.1f} deg (median/p95/max; p95 at lag "
                      f"{x['phalanx_deg_p95_at_lag']:.1f}), palm {pm['median']:.1f}/{pm['p95']:.1f}/{pm['max']:.1f} mm, "
                      f"{pa['median']:.1f}/{pa['p95']:.1f}/{pa['max']:.1f} deg")
