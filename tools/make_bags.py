@@ -96,8 +96,9 @@ def main(argv=None):
     parser.add_argument("--only", nargs="*", choices=sorted(names), help="bags to write (default: all)")
     parser.add_argument("--position-noise", type=float, default=None, metavar="MM",
                         help="std of the white noise added to every joint coordinate of every frame [mm] "
-                             f"(default {tracker_bags.POSITION_NOISE * 1e3:g}, the shipped bags'; the Leap "
-                             "recordings carry 0.02-0.05 mm frame to frame)")
+                             f"(default {tracker_bags.POSITION_NOISE * 1e3:g}, the shipped bags': the Leap "
+                             "recordings carry 0.02-0.05 mm frame to frame; fast_dropout keeps its own "
+                             f"{tracker_bags.NOISY_TRACKER * 1e3:g} mm)")
     args = parser.parse_args(argv)
     if args.position_noise is not None:
         if not args.position_noise >= 0.0:

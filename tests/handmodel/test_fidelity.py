@@ -67,8 +67,9 @@ def test_held_pose_error_against_the_averaged_tracked_pose():
 def test_tracker_noise_estimate():
     """tracker_noise on a hand closing and travelling 20 cm over 2 s at 100 Hz (smooth): white noise
     of 0.1, 0.5 and 1.5 mm per coordinate is read within 10 %; without noise the motion itself
-    reads under 0.01 mm; the shipped synthetic bag grasp_lift reads its 1.5 mm, the real Leap
-    recording leap_roll_pitch under 0.05 mm."""
+    reads under 0.01 mm; the shipped synthetic bags read theirs (grasp_lift 0.05 mm, a Leap
+    recording's; fast_dropout, kept noisy, 1.5 mm), the real Leap recording leap_roll_pitch under
+    0.05 mm."""
     from softhand_sim.handmodel.fidelity import tracker_noise
     from softhand_sim.commands.offline import read_frames
 
@@ -83,7 +84,8 @@ def test_tracker_noise_estimate():
         noisy = joints.copy()
         noisy[:, :, :3] += rng.normal(0.0, sd, noisy[:, :, :3].shape)
         assert abs(tracker_noise(noisy) / sd - 1.0) < 0.1, (sd, tracker_noise(noisy))
-    assert abs(tracker_noise(read_frames("grasp_lift", None, side="right")[1]) - 1.5e-3) < 1.5e-4
+    assert abs(tracker_noise(read_frames("grasp_lift", None, side="right")[1]) / 5e-5 - 1.0) < 0.15
+    assert abs(tracker_noise(read_frames("fast_dropout", None, side="right")[1]) / 1.5e-3 - 1.0) < 0.1
     assert tracker_noise(read_frames("leap_roll_pitch", None, side="right")[1]) < 5e-5
 
 
@@ -193,8 +195,10 @@ def test_fidelity_of_a_recording_reports_lag_orientation_and_frames(tmp_path):
 
 @pytest.mark.parametrize("bag, tips_median, tips_p95, knuckles, phalanx", [
     ("leap_grab", 8.0, 20.0, 6.0, 3.0), ("leap_roll_pitch", 8.0, 20.0, 6.0, 3.0),  # the real recordings
-    # synthetic 15.6 / 21 cm hands: their 1.5 mm tracker noise alone turns a 16-20 mm phalanx by ~6 deg
-    ("small_hand", 5.0, 20.0, 6.0, 12.0), ("large_hand", 5.0, 20.0, 6.0, 12.0)])
+    # synthetic 15.6 / 21 cm hands, made by the kinematic hand of their measures with a Leap
+    # recording's noise: what fitting recovers is exact but for that noise (measured 0.3 / 0.5 mm,
+    # 0.2 / 0.3 mm, 0.4 deg)
+    ("small_hand", 2.0, 8.0, 2.0, 2.0), ("large_hand", 2.0, 8.0, 2.0, 2.0)])
 def test_fitted_hand_follows_the_tracked_hand(bag, tips_median, tips_p95, knuckles, phalanx):
     """The user-fit acceptance, offline (deterministic; the node-level figures are in the README):
     the hand `softhand calibrate` fits to each bag, simulated over it, has its fingertips within
@@ -202,8 +206,9 @@ def test_fitted_hand_follows_the_tracked_hand(bag, tips_median, tips_p95, knuckl
     palm (the adapter's wrist) within 4 mm and the phalanx directions within 3 deg on the real
     recordings (median: a wrong joint-to-bone mapping shows as centimetres and tens of degrees;
     measured 0.1-3.3 mm, 0.3-0.7 deg); where
-    the tracked thumb-index gap falls below 15 mm, the simulated gap within 5 mm of it. The default
-    hand misses the fingertip bound on every bag (what fitting is for)."""
+    the tracked thumb-index gap falls below 15 mm, the simulated gap within 5 mm of it; where the
+    tracked hand holds still, the held phalanxes within 1 deg (median). The default hand misses the
+    fingertip bound on every bag (what fitting is for)."""
     from softhand_sim.commands.fidelity import measures_for, offline_fidelity
 
     fitted, _ = offline_fidelity(bag, measures_for("auto", bag))
@@ -212,5 +217,7 @@ def test_fitted_hand_follows_the_tracked_hand(bag, tips_median, tips_p95, knuckl
     assert fitted["palm_mm"]["median"] <= 4.0 and fitted["phalanx_direction_deg"]["median"] <= phalanx, fitted
     if fitted["pinch_states"]:
         assert fitted["pinch_gap_error_mm"]["median"] <= 5.0, fitted["pinch_gap_error_mm"]
+    if fitted["held_states"]:  # #17's held-pose goal (measured 0.21-0.28 deg on the synthetic bags)
+        assert fitted["held_phalanx_deg"]["median"] <= 1.0, fitted["held_phalanx_deg"]
     default, _ = offline_fidelity(bag, HandMeasures())
     assert default["fingertip_mm"]["median"] > tips_median, default["fingertip_mm"]
