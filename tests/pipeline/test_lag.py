@@ -110,3 +110,63 @@ def test_the_other_hand_is_left_alone(tmp_path):
     assert r["sim"]["lag_phalanx_ms"] == pytest.approx(30.0, abs=1.0)
     with pytest.raises(ValueError, match="/tracker/right/hand_joints"):
         lag_report(rec)
+
+
+def _contacts_msg(t, count, code=0):
+    """A /hand/contacts cloud stamped t [s] with `count` contacts of hand `code` (serialized)."""
+    from rclpy.serialization import serialize_message
+
+    from softhand_sim.ros import msgs as rm
+
+    z = np.zeros((count, 3))
+    cloud = rm.contacts_cloud_from_numpy(z, z + [0.0, 0.0, 1.0], z, np.zeros(count, np.uint32),
+                                         np.zeros(count, np.uint8), rm.stamp_from_seconds(t),
+                                         hand=np.full(count, code, np.uint8))
+    return serialize_message(cloud)
+
+
+def test_free_air_lag_leaves_out_the_states_near_contact(tmp_path):
+    """The sim layer 30 ms behind the tracked hand in free air and 90 ms while /hand/contacts has
+    contacts of that hand (1.0-1.5 s; the left hand's contacts at other times do not count): the
+    whole run's lag lies between, the free-air lag (the sim states 0.3 s or more from the right
+    hand's contacts) is the 30 ms within 1 ms. Without a contact of that hand, free air is the
+    whole run; a recording without /hand/contacts has no free-air lag."""
+    from rosbags.rosbag2 import Reader
+
+    from softhand_sim.ros.bagio import read_topic
+
+    def run(path, windows):
+        base = recording(path, duration=3.0)
+        with Reader(base) as r:  # the plain recording's records, with the sim layer re-timed
+            conns = {c.topic: c.msgtype for c in r.connections}
+        records = []
+        for topic, msgtype in conns.items():
+            data = read_topic(base, topic, msgtype)
+            records += [(topic, msgtype, s, raw) for s, raw in zip(data.stamps_ns, data.payloads)]
+        motion = tracker_bags.SCENARIOS["grasp_short"].motion()
+        adapter = TrackerAdapter()
+        sim = layer_topics("right")["sim"]
+        records = [r for r in records if r[0] != sim]
+        for t in np.arange(0.1, 3.0, 1.0 / 60.0):
+            touching = any(a <= t <= b for a, b, code in windows if code == 0)
+            delay = 0.090 if touching else 0.030
+            bones = adapter.convert(forward_kinematics(*motion(float(np.clip(t - delay, 0.0, motion.duration))))[0][:, :3])
+            records.append((sim, POSE_ARRAY, int((T0 + t + 0.003) * 1e9), _msg(bones, T0 + t)))
+            for a, b, code in windows:
+                records.append(("/hand/contacts", "sensor_msgs/msg/PointCloud2", int((T0 + t + 0.003) * 1e9),
+                                _contacts_msg(T0 + t, 5 if a <= t <= b else 0, code)))
+        records.sort(key=lambda r: r[2])
+        out = tmp_path / f"{path.name}_timed"
+        write_bag(out, records)
+        return lag_report(out)
+
+    r = run(tmp_path / "touch", [(1.0, 1.5, 0), (0.2, 0.6, 1)])
+    print(format_report(r))
+    assert r["sim"]["lag_phalanx_ms"] > 35.0
+    assert r["sim_free_air"]["lag_phalanx_ms"] == pytest.approx(30.0, abs=1.0)
+    assert r["sim_free_air"]["messages"] < r["sim"]["messages"] - 60  # 0.5 s + 2 x 0.3 s left out
+    assert "sim in free air" in format_report(r)
+    free = run(tmp_path / "free", [(0.2, 0.6, 1)])
+    assert free["sim_free_air"]["messages"] == free["sim"]["messages"]
+    assert free["sim_free_air"]["lag_phalanx_ms"] == pytest.approx(free["sim"]["lag_phalanx_ms"], abs=1e-9)
+    assert "sim_free_air" not in lag_report(recording(tmp_path / "plain"))

@@ -259,7 +259,7 @@ def fidelity_line(f: dict) -> str:
 
 
 def format_summary(s, out_dir):
-    from softhand_sim.commands.lag import lag_text
+    from softhand_sim.commands.lag import LAYER_NAMES, lag_text
     from softhand_sim.commands.run_summary import hand_measures_line
 
     r = s.get("rates_hz", {})
@@ -278,7 +278,8 @@ def format_summary(s, out_dir):
             f"max contacts {h['max_contacts']}"
           for side, h in s.get("hands", {}).items() if len(s.get("hands", {})) > 1),
         *(f"  {side} hand lag behind the tracked one (phalanx / palm): "
-          + ", ".join(f"{layer} {lag_text(v['phalanx'])} / {lag_text(v['palm'])} ms" for layer, v in h["lag_ms"].items())
+          + ", ".join(f"{LAYER_NAMES.get(layer, layer)} {lag_text(v['phalanx'])} / {lag_text(v['palm'])} ms"
+                      for layer, v in h["lag_ms"].items())
           for side, h in s.get("hands", {}).items() if h.get("lag_ms")),
         *(f"  {side} hand vs the tracked one (median / p95): " + fidelity_line(h["fidelity"])
           for side, h in s.get("hands", {}).items() if h.get("fidelity")),

@@ -13,7 +13,8 @@ Prints the figures of softhand_sim.handmodel.fidelity (palm, knuckle, fingertip 
 phalanx direction error, thumb-index tip gap) as JSON: one object, with the figures of each hand
 under "hands" when a recording holds two. A recording's figures also hold what `softhand lag`
 measures (softhand_sim.commands.lag): `lag_ms` (the best time shift of the intermediate and the
-simulated phalanx directions and palm behind the tracked ones), `palm_deg` (the simulated palm's
+simulated phalanx directions and palm behind the tracked ones, and `sim_free_air`: the simulated
+hand's over its states 0.3 s or more from any contact), `palm_deg` (the simulated palm's
 orientation error), `frames` (tracker frames recorded, and received / accepted / rejected by
 the hand's tracking node) and `skin_contacts` (skin on skin, with sim_node's self_contact: the
 most in one step and the steps with any).
@@ -99,7 +100,7 @@ def recorded_fidelity(bag, bone_length, side="right"):
     """The figures of hand `side` in a recording (/tracker/{side}/hand_joints vs /hand/{side}/bones),
     with its lag, palm orientation error and frame counts (module docstring); bone_length: the
     simulated hand's (16,) [m]."""
-    from softhand_sim.commands.lag import lag_report
+    from softhand_sim.commands.lag import REPORT_LAYERS, lag_report
     from softhand_sim.ros.bagio import read_tracker
     tt, tj = _decode(read_tracker(bag, side).payloads)
     order = np.argsort(tt, kind="stable")
@@ -110,7 +111,7 @@ def recorded_fidelity(bag, bone_length, side="right"):
         return round(v, 1) if np.isfinite(v) else None
 
     figures["lag_ms"] = {layer: {"phalanx": ms(lag[layer]["lag_phalanx_ms"]), "palm": ms(lag[layer]["lag_palm_ms"])}
-                         for layer in ("intermediate", "sim") if layer in lag}
+                         for layer in REPORT_LAYERS if layer in lag}
     figures["lag_time_base"] = lag["time_base"]
     if "palm_deg" in lag.get("sim", {}):
         figures["palm_deg"] = {k: round(v, 2) for k, v in lag["sim"]["palm_deg"].items()}

@@ -14,6 +14,12 @@ intermediate layer and for the simulated skeleton each:
   and the palm position (mean squared distance); searched on a 1 ms grid over SHIFT_RANGE_MS and
   refined by a parabola through the best three; NaN for what the tracked hand hardly moves (the
   palm of a bag that only opens and closes the fingers: MIN_TRAVEL_M, MIN_TURN_RAD);
+* the simulated skeleton's lag in free air (`sim_free_air`): the same, over the simulated states
+  at least FREE_AIR_S from any contact of that hand (object or skin, /hand/contacts), where the
+  hand follows its targets alone. A grasp bag's fingers move mostly while they close on an object,
+  which holds them back (a best shift there is not a lag); this is the lag of the free-air motion
+  around it. Left out when fewer than MIN_FREE_SAMPLES states are free (the hand in contact all
+  along) or the recording has no /hand/contacts;
 * errors at zero shift: phalanx direction angle, palm position and palm orientation (median /
   p95 / max), and the phalanx angle p95 at the best shift (what is left once the lag is removed);
 * tracker frames: recorded, and that hand's tracking node's received / accepted / rejected (its
@@ -41,6 +47,8 @@ import numpy as np
 from softhand_sim.topics import hand_topic, tracker_topic
 
 LAYER_TOPICS = {"intermediate": "intermediate_bones", "sim": "bones"}  # layer -> per-side topic name
+REPORT_LAYERS = (*LAYER_TOPICS, "sim_free_air")  # the layers of a report, in its order
+LAYER_NAMES = {"sim_free_air": "sim in free air"}  # as printed, where not the key
 SHIFT_RANGE_MS = (-60.0, 250.0)  # [ms] lags searched (negative: the layer leads)
 COARSE_MS = 5.0                  # [ms] the search's first grid; then 1 ms steps around the best
 MAX_GAP_S = 0.05                 # [s] tracked frames further apart are not interpolated across
@@ -52,6 +60,9 @@ CLOCK_MISMATCH_S = 1.0           # [s] tracker vs output stamps further apart: n
 MIN_TURN_RAD = 0.1      # [rad] spread of the tracked phalanx directions
 SMOOTH = 7              # tracked frames averaged before the spread is taken
 MIN_TRAVEL_M = 0.01     # [m] spread of the tracked palm position
+CONTACTS_TOPIC = "/hand/contacts"
+FREE_AIR_S = 0.3        # [s] a state this far in time from any contact of its hand is in free air
+MIN_FREE_SAMPLES = 30   # free-air states needed for a free-air lag (half a second at 60 Hz)
 
 
 @dataclass
@@ -233,18 +244,28 @@ def read_run(path, hand: str = "right"):
     from rosbags.typesys import Stores, get_typestore
 
     from softhand_sim.commands.run_summary import tracking_frame_counts
-    from softhand_sim.ros.msgs import pose_array_from_cdr, status_node
+    from softhand_sim.physics.hands import HAND_CODE
+    from softhand_sim.ros.msgs import pointcloud_to_structured, pose_array_from_cdr, status_node
 
     path = Path(path)
     if (path / "bag" / "metadata.yaml").is_file():
         path = path / "bag"
     store = get_typestore(Stores.ROS2_JAZZY)
     rows = {t: ([], [], []) for t in (tracker_topic(hand), *layer_topics(hand).values())}
-    counts = {}
+    counts, touching = {}, ([], [], [])
+    code = HAND_CODE[hand]
     with Reader(path) as reader:
-        conns = [c for c in reader.connections if c.topic in rows or c.topic == "/diagnostics"]
+        conns = [c for c in reader.connections if c.topic in rows or c.topic in ("/diagnostics", CONTACTS_TOPIC)]
         # (rosbags reads every connection when given none)
         for conn, t_ns, raw in reader.messages(connections=conns) if conns else ():
+            if conn.topic == CONTACTS_TOPIC:  # this hand's contacts in the step (a cloud without the
+                msg = store.deserialize_cdr(raw, conn.msgtype)  # `hand` field is one right hand's)
+                cloud = pointcloud_to_structured(msg)
+                hands = cloud["hand"] if "hand" in cloud.dtype.names else np.zeros(cloud.size, np.uint8)
+                touching[0].append(msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec)
+                touching[1].append(t_ns * 1e-9)
+                touching[2].append(int(np.sum(hands == code)))
+                continue
             if conn.topic == "/diagnostics":
                 for status in store.deserialize_cdr(raw, conn.msgtype).status:
                     values = {kv.key: kv.value for kv in status.values}
@@ -260,7 +281,22 @@ def read_run(path, hand: str = "right"):
     for topic, (stamps, recv, poses) in rows.items():
         if poses and len({p.shape for p in poses}) == 1:
             out[topic] = (np.asarray(stamps), np.asarray(recv), np.asarray(poses))
+    if touching[0]:  # (header stamps, receive times, this hand's contact count) per step
+        out[CONTACTS_TOPIC] = tuple(np.asarray(x) for x in touching)
     return out, counts
+
+
+def free_air(t, contact_t, contact_count, margin=FREE_AIR_S) -> np.ndarray:
+    """Mask of the times t [s] with no step of a nonzero contact_count within `margin` [s] (the
+    contact messages at contact_t [s])."""
+    touch = np.sort(np.asarray(contact_t, float)[np.asarray(contact_count) > 0])
+    t = np.asarray(t, float)
+    if not touch.size:
+        return np.ones(t.size, dtype=bool)
+    i = np.searchsorted(touch, t)
+    before = np.where(i > 0, t - touch[np.maximum(i - 1, 0)], np.inf)
+    after = np.where(i < touch.size, touch[np.minimum(i, touch.size - 1)] - t, np.inf)
+    return (before > margin) & (after > margin)
 
 
 def _sorted(t, poses) -> Series:
@@ -298,13 +334,21 @@ def lag_report(path, hand: str = "right", time_base: str = "auto") -> dict:
             s = data[topic]
             report[name] = layer_lag(ref, _sorted(s[col], s[2]), ref_spread=ref_spread)
             report[name]["messages"] = int(len(s[0]))
+    if layers["sim"] in data and CONTACTS_TOPIC in data:
+        s, c = data[layers["sim"]], data[CONTACTS_TOPIC]
+        free = free_air(s[col], c[col], c[2])
+        if free.sum() >= MIN_FREE_SAMPLES:  # its own stillness rule: what the free-air windows move
+            ref_free = free_air(ref.t, c[col], c[2])
+            report["sim_free_air"] = layer_lag(ref, _sorted(s[col][free], s[2][free]),
+                                               ref_spread=spread(Series(ref.t[ref_free], ref.poses[ref_free])))
+            report["sim_free_air"]["messages"] = int(free.sum())
     return report
 
 
 def format_report(r: dict, title: str = "") -> str:
     lines = [f"lag report {title} (time base: {r['time_base']})".replace("  ", " "),
              "  tracker frames: " + ", ".join(f"{k} {v}" for k, v in r["frames"].items())]
-    for name in LAYER_TOPICS:
+    for name in REPORT_LAYERS:
         if name not in r:
             continue
         x = r[name]
@@ -312,7 +356,7 @@ def format_report(r: dict, title: str = "") -> str:
             lines.append(f"  {name}: not enough overlapping samples")
             continue
         pd, pm, pa = x["phalanx_deg"], x["palm_mm"], x["palm_deg"]
-        lines.append(f"  {name:12s} lag: phalanx {lag_text(x['lag_phalanx_ms'], ' ms'):>8s}, palm "
+        lines.append(f"  {LAYER_NAMES.get(name, name):15s} lag: phalanx {lag_text(x['lag_phalanx_ms'], ' ms'):>8s}, palm "
                      f"{lag_text(x['lag_palm_ms'], ' ms'):>8s} | "
                      f"phalanx {pd['median']:.1f}/{pd['p95']:.1f}/{pd['max']:.1f} deg (median/p95/max; p95 at lag "
                      f"{x['phalanx_deg_p95_at_lag']:.1f}), palm {pm['median']:.1f}/{pm['p95']:.1f}/{pm['max']:.1f} mm, "
