@@ -5,19 +5,19 @@ sim_node uses the latest one for a step from t to t + dt and stamps its state t 
 are, the targets are t + dt - stamp old when the state is compared with them: 17-21 ms at 60 Hz,
 most of the simulated hand's lag behind the tracked one (the springs of Eq. 14 add the rest). So
 each hand's targets are moved forward to t + dt with their own velocity, at most MAX_LEAD. The
-velocity is the difference over the last VELOCITY_WINDOW of targets, low-pass filtered: between
-two messages 4 ms apart the noise of a tracker (the sample bags carry ~1 mm and ~1 deg) made up to
-30 rad/s of a fingertip's angular velocity, and a 20 ms lead doubled the free-air error.
+velocity is the difference over the last VELOCITY_WINDOW of targets, low-pass filtered: between two
+messages 4 ms apart the noise of a tracker (~1 mm and ~1 deg: fast_dropout's, the noisy sample bag)
+made up to 30 rad/s of a fingertip's angular velocity, and a 20 ms lead doubled the free-air error.
 What noise is left in the filtered velocity is estimated on line (the mean square of each new
-difference against the filtered velocity, over NOISE_TIME), and each bone's linear and angular
-lead is scaled by v^2 / (v^2 + NOISE_GAIN noise^2): a hand moving well above its tracker's noise
-gets the whole lead, a still or noisy one little. Offline, the fitted hands of the synthetic bags
-(1.5 mm of noise per joint) had their fingertip error's median rise from 4.73 / 4.85 mm without the
-lead to 5.83 / 5.71 mm with it unscaled, and 4.88 / 4.95 mm scaled; on the Leap recordings the
-scaling costs ~1 ms of the phalanxes' lag and lowers their error. No target is moved further than
-MAX_SHIFT or turned further than MAX_TURN: after a jump of the tracked hand the intermediate bones
-race to it at metres per second, and led they would overshoot by centimetres (the caps never bind
-on the Leap recordings: their lag and error are the same with and without them).
+difference against the filtered velocity, over NOISE_TIME), and each bone's linear and angular lead
+is scaled by v^2 / (v^2 + NOISE_GAIN noise^2): a hand moving well above its tracker's noise gets the
+whole lead, a still or noisy one little. Offline, the fitted hands of the synthetic bags when they
+carried 1.5 mm of noise per joint had their fingertip error's median rise from 4.73 / 4.85 mm
+without the lead to 5.83 / 5.71 mm with it unscaled, and 4.88 / 4.95 mm scaled; on the Leap
+recordings the scaling costs ~1 ms of the phalanxes' lag and lowers their error. No target is moved
+further than MAX_SHIFT or turned further than MAX_TURN: after a jump of the tracked hand the
+intermediate bones race to it at metres per second, and led they would overshoot by centimetres (the
+caps never bind on the Leap recordings: their lag and error are the same with and without them).
 
 In contact the paper's behaviour is kept: the springs pull toward the targets as they came, not
 toward where the hand would be if nothing stopped it (a moved target would press harder into

@@ -12,11 +12,11 @@ tracked wrist: the fingers' motion against each other and the hand's turning are
 hand's travel passes unfiltered.
 
 Why it is here: tracker jitter of the phalanxes against each other walks a held object out of the
-grip. The two-hand lift's box slid 10-13 mm relative to the palms in the hold with the sample
-bags' 1.5 mm of noise per joint, 0.2 mm without it, 2 mm with the same noise as one offset of the
-whole hand; with this filter (1 Hz, 30 s/m) 4.8 / 3.9 mm. What it costs is lag of the fingers in
-motion: +6-7 ms on the real recordings (README, "Filtering the tracked joints"). So it is off by
-default.
+grip. The two-hand lift's box slid 10-13 mm relative to the palms in the hold with 1.5 mm of noise
+per joint (the sample bags' until they took a real tracker's 0.05 mm: 0.4 mm then), 0.2 mm without
+it, 2 mm with the same noise as one offset of the whole hand; with this filter (1 Hz, 30 s/m) 4.8 /
+3.9 mm. What it costs is lag of the fingers in motion: +6-7 ms on the real recordings (README,
+"Filtering the tracked joints"). So it is off by default.
 
 Per joint, not per coordinate: the speed that opens the cutoff is the norm of the joint's smoothed
 3D velocity, so a motion along one axis is not smoothed differently from the same motion along
