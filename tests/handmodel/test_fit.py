@@ -72,9 +72,10 @@ def truth_points(m):
 @pytest.mark.parametrize("scale,seed", [(16.0 / 19.0, 1), (21.0 / 19.0, 2)])
 def test_synthetic_hand_recovered(scale, seed, noise, tol):
     """Small and large hands, 1 s of frames with 10 % outlier frames: with fast_dropout's noise
-    (1.5 mm per coordinate, 30 times the other sample bags') every bone length, knuckle and the CMC within 1 mm of the truth, with
-    3 mm noise within 2 mm. The outlier frames are rejected (at least 8 of the 10 in the window;
-    a joint thrown that no measure reads, a finger METACARPAL, leaves its frame usable)."""
+    (1.5 mm per coordinate, 30 times the other sample bags') every bone length, knuckle and the CMC
+    within 1 mm of the truth, with 3 mm noise within 2 mm. The outlier frames are rejected (at
+    least 8 of the 10 in the window; a joint thrown that no measure reads, a finger METACARPAL,
+    leaves its frame usable)."""
     truth = scaled_hand(scale, seed)
     times, joints = synthetic_frames(truth, noise=noise, seed=seed)
     result = fit_measures(times, joints, seconds=1.0)

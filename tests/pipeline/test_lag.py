@@ -150,7 +150,8 @@ def test_free_air_lag_leaves_out_the_states_near_contact(tmp_path):
         for t in np.arange(0.1, 3.0, 1.0 / 60.0):
             touching = any(a <= t <= b for a, b, code in windows if code == 0)
             delay = 0.090 if touching else 0.030
-            bones = adapter.convert(forward_kinematics(*motion(float(np.clip(t - delay, 0.0, motion.duration))))[0][:, :3])
+            shown = float(np.clip(t - delay, 0.0, motion.duration))
+            bones = adapter.convert(forward_kinematics(*motion(shown))[0][:, :3])
             records.append((sim, POSE_ARRAY, int((T0 + t + 0.003) * 1e9), _msg(bones, T0 + t)))
             for a, b, code in windows:
                 records.append(("/hand/contacts", "sensor_msgs/msg/PointCloud2", int((T0 + t + 0.003) * 1e9),

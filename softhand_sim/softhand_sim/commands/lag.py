@@ -356,7 +356,8 @@ def format_report(r: dict, title: str = "") -> str:
             lines.append(f"  {name}: not enough overlapping samples")
             continue
         pd, pm, pa = x["phalanx_deg"], x["palm_mm"], x["palm_deg"]
-        lines.append(f"  {LAYER_NAMES.get(name, name):15s} lag: phalanx {lag_text(x['lag_phalanx_ms'], ' ms'):>8s}, palm "
+        label = LAYER_NAMES.get(name, name)
+        lines.append(f"  {label:15s} lag: phalanx {lag_text(x['lag_phalanx_ms'], ' ms'):>8s}, palm "
                      f"{lag_text(x['lag_palm_ms'], ' ms'):>8s} | "
                      f"phalanx {pd['median']:.1f}/{pd['p95']:.1f}/{pd['max']:.1f} deg (median/p95/max; p95 at lag "
                      f"{x['phalanx_deg_p95_at_lag']:.1f}), palm {pm['median']:.1f}/{pm['p95']:.1f}/{pm['max']:.1f} mm, "

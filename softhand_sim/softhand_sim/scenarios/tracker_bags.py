@@ -2,9 +2,9 @@
 
 A kinematic right hand (`kinematic_hand`, default dimensions) is driven by keyframed palm poses
 and per digit a closure value (mapped to joint angles inside `DIGIT_LIMITS`) or explicit angles. The 26
-OpenXR joints are sampled at the tracker's rate with timing jitter and white position noise,
-as a real optical tracker reports them (POSITION_NOISE, a Leap recording's; fast_dropout 30 times it). Placed in the default scene (config/scene.yaml):
-table top z = 0.75, ball r = 0.04 at (0, 0, 0.79).
+OpenXR joints are sampled at the tracker's rate with timing jitter and white position noise, as a
+real optical tracker reports them (POSITION_NOISE, a Leap recording's; fast_dropout 30 times it).
+Placed in the default scene (config/scene.yaml): table top z = 0.75, ball r = 0.04 at (0, 0, 0.79).
 
 The grasp bags (grasp_lift, grasp_short, squeeze) use a caging grasp (`cage_palm_pose`,
 `cage_angles`, see the block comment above them): digits pre-shaped open over the ball, closed
