@@ -106,3 +106,17 @@ def test_bench_profile_json_has_every_stage(capsys):
     assert bench.main(["--profile", "--steps", "2", "--mesh", "coarse", "--scenario", "free"]) == 0
     text = capsys.readouterr().out
     assert "profile: free, coarse" in text and all(f" {n} " in text for n in stages)
+
+
+def test_self_contact_model_follows_the_mesh_within_one_bench():
+    """`softhand bench --scenario free_self` runs the coarse hand, then the fine one, with the same
+    scenario object: each mesh gets the self-contact model of its own tets. (It kept the coarse
+    one: the fine hand's skin points, embedded by the coarse tets' indices, lay inside other
+    segments, 1,896 skin-skin contacts in free motion and CG at its 200-iteration cap.) The fine
+    hand's free motion has no skin-skin contact, as when run alone."""
+    coarse = bench.run("free_self", "coarse", 3, "factor")
+    fine = bench.run("free_self", "fine", 3, "factor")
+    assert coarse["self_contacts_median"] < 50 and fine["self_contacts_median"] == 0, (coarse, fine)
+    assert fine["cg_hit_cap"] == 0, fine
+    scenario = bench.SCENARIOS["free_self"]
+    assert len({id(asset) for asset, _ in scenario._smodels.values()}) == len(scenario._smodels) >= 2

@@ -114,19 +114,24 @@ class _Press:
 
 class _SelfContact:
     """Skin-skin contact for a scenario (the hand model only): one SelfContactModel per asset,
-    a fresh system per solver."""
+    a fresh system per solver. The scenario objects live as long as the process (SCENARIOS), and
+    one `softhand bench` runs the coarse hand, then the fine one: the model is kept per asset, as
+    the skin points are embedded in that asset's tets (reused for the fine hand, the coarse
+    embedding put thousands of skin points inside other segments)."""
 
     def __init__(self):
-        self._smodel = None
+        self._smodels = {}  # id(asset) -> (asset, SelfContactModel); the asset kept so its id stays its own
 
     def self_contacts(self, model):
         from softhand_sim.handmodel.rigid_skin import skin_segments
         from softhand_sim.physics.contact import self_contact
         if getattr(self.asset, "skin_triangles", None) is None:
             raise ValueError("self contact needs the hand model (--mesh coarse or fine)")
-        if self._smodel is None:
-            self._smodel = self_contact.build_self_contact_system(model, self.asset, skin_segments(self.asset)).model
-        return self_contact.SelfContactSystem(self._smodel, model, int(model.params["self_contact_capacity"]))
+        if id(self.asset) not in self._smodels:
+            built = self_contact.build_self_contact_system(model, self.asset, skin_segments(self.asset)).model
+            self._smodels[id(self.asset)] = (self.asset, built)
+        smodel = self._smodels[id(self.asset)][1]
+        return self_contact.SelfContactSystem(smodel, model, int(model.params["self_contact_capacity"]))
 
 
 class _FreeSelf(_SelfContact, _Free):
