@@ -45,34 +45,35 @@ def pose_array(stamp_ns, joints):
     return t[MSGTYPE](header=header, poses=poses)
 
 
-def make_bag(name, out_dir: Path) -> Path:
+def make_bag(name, out_dir: Path, position_noise=None) -> Path:
+    """A one-hand bag of scenario `name` (position_noise [m]: instead of the bags' POSITION_NOISE)."""
     path = out_dir / name
     if path.exists():
         shutil.rmtree(path)
-    stamps, joints, _ = sample(name)
+    stamps, joints, _ = sample(name, position_noise=position_noise)
     records = ((TOPIC, MSGTYPE, int(s), serialize(pose_array(int(s), j), MSGTYPE)) for s, j in zip(stamps, joints))
     return write_bag(path, records, storage="mcap")
 
 
-def make_mirrored_bag(name, out_dir: Path) -> Path:
+def make_mirrored_bag(name, out_dir: Path, position_noise=None) -> Path:
     """A left-hand bag: the frames of a right-hand sample mirrored through the xz plane (y -> -y,
     each joint pose mirrored as bimanual.mirror_poses does), on /tracker/left/hand_joints."""
     path = out_dir / name
     if path.exists():
         shutil.rmtree(path)
-    stamps, joints, _ = sample(MIRRORED[name])
+    stamps, joints, _ = sample(MIRRORED[name], position_noise=position_noise)
     topic = tracker_topic("left")
     records = ((topic, MSGTYPE, int(s), serialize(pose_array(int(s), mirror_poses(j)), MSGTYPE))
                for s, j in zip(stamps, joints))
     return write_bag(path, records, storage="mcap")
 
 
-def make_two_hand_bag(name, out_dir: Path) -> Path:
+def make_two_hand_bag(name, out_dir: Path, position_noise=None) -> Path:
     """A two-hand bag: both sides' tracker topics, interleaved by capture time, and params.yaml."""
     path = out_dir / name
     if path.exists():
         shutil.rmtree(path)
-    frames = tracker_frames(name)
+    frames = tracker_frames(name, position_noise=position_noise)
     records = sorted(((tracker_topic(side), MSGTYPE, int(s), j) for side, (stamps, joints) in frames.items()
                       for s, j in zip(stamps, joints)), key=lambda r: (r[2], r[0]))
     write_bag(path, ((topic, t, s, serialize(pose_array(s, j), MSGTYPE)) for topic, t, s, j in records),
@@ -100,17 +101,16 @@ def main(argv=None):
                              "recordings carry 0.02-0.05 mm frame to frame; fast_dropout keeps its own "
                              f"{tracker_bags.NOISY_TRACKER * 1e3:g} mm)")
     args = parser.parse_args(argv)
+    noise = None
     if args.position_noise is not None:
         if not args.position_noise >= 0.0:
             parser.error(f"--position-noise {args.position_noise}: must be >= 0 [mm]")
-        tracker_bags.POSITION_NOISE = args.position_noise * 1e-3  # read by every bag's sampling
+        noise = args.position_noise * 1e-3
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     for name in args.only or names:
-        if name in TWO_HAND_BAGS:
-            path = make_two_hand_bag(name, out)
-        else:
-            path = make_mirrored_bag(name, out) if name in MIRRORED else make_bag(name, out)
+        make = make_two_hand_bag if name in TWO_HAND_BAGS else make_mirrored_bag if name in MIRRORED else make_bag
+        path = make(name, out, position_noise=noise)
         size = sum(f.stat().st_size for f in path.iterdir())
         print(f"{path}: {size / 1e6:.2f} MB")
     return 0

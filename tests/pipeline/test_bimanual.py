@@ -114,14 +114,10 @@ def _hold_slip(bag, tracking=None):
 def noisy_lift_bag(tmp_path_factory):
     """two_hand_lift made with 1.5 mm of tracker noise (30 times the shipped bag's, fast_dropout's):
     tools/make_bags.py with --position-noise 1.5."""
-    from softhand_sim.scenarios import tracker_bags
     from tests.support.tools import load_tool
 
-    out, noise = tmp_path_factory.mktemp("noisy"), tracker_bags.POSITION_NOISE
-    try:
-        load_tool("make_bags").main(["--out", str(out), "--only", "two_hand_lift", "--position-noise", "1.5"])
-    finally:  # main() sets the noise for its whole process
-        tracker_bags.POSITION_NOISE = noise
+    out = tmp_path_factory.mktemp("noisy")
+    load_tool("make_bags").main(["--out", str(out), "--only", "two_hand_lift", "--position-noise", "1.5"])
     return out / "two_hand_lift"
 
 

@@ -171,3 +171,34 @@ def test_free_air_lag_leaves_out_the_states_near_contact(tmp_path):
     assert free["sim_free_air"]["messages"] == free["sim"]["messages"]
     assert free["sim_free_air"]["lag_phalanx_ms"] == pytest.approx(free["sim"]["lag_phalanx_ms"], abs=1e-9)
     assert "sim_free_air" not in lag_report(recording(tmp_path / "plain"))
+
+
+def test_contact_steps_count_each_hands_contacts_and_skin_on_skin(tmp_path):
+    """contact_steps reads /hand/contacts per step for one hand (the `hand` field), with its skin-on-
+    skin contacts apart; softhand fidelity's skin_contact_counts come from them (the most in one
+    step, the steps with any). Without the topic: None, and zero skin contacts."""
+    from rclpy.serialization import serialize_message
+
+    from softhand_sim.commands.fidelity import skin_contact_counts
+    from softhand_sim.commands.lag import contact_steps
+    from softhand_sim.ros import msgs as rm
+    from softhand_sim.topics import SKIN_OBJECT
+
+    def cloud(t, objects, hands):
+        n = len(objects)
+        z = np.zeros((n, 3))
+        return serialize_message(rm.contacts_cloud_from_numpy(
+            z, z + [0.0, 0.0, 1.0], z, np.asarray(objects, np.uint32), np.zeros(n, np.uint8),
+            rm.stamp_from_seconds(t), hand=np.asarray(hands, np.uint8)))
+
+    steps = [([0, SKIN_OBJECT, SKIN_OBJECT], [0, 0, 1]), ([], []), ([SKIN_OBJECT] * 3, [0, 0, 0])]
+    records = [("/hand/contacts", "sensor_msgs/msg/PointCloud2", int((T0 + 0.01 * k) * 1e9),
+                cloud(T0 + 0.01 * k, *step)) for k, step in enumerate(steps)]
+    write_bag(tmp_path / "rec", records)
+    right, left = contact_steps(tmp_path / "rec"), contact_steps(tmp_path / "rec", "left")
+    assert right.count.tolist() == [2, 0, 3] and right.skin.tolist() == [1, 0, 3]
+    assert left.count.tolist() == [1, 0, 0] and left.skin.tolist() == [1, 0, 0]
+    assert right.stamp == pytest.approx(T0 + 0.01 * np.arange(3), abs=1e-6)
+    assert skin_contact_counts(right) == {"max": 3, "steps": 2}
+    assert contact_steps(recording(tmp_path / "plain")) is None
+    assert skin_contact_counts(None) == {"max": 0, "steps": 0}

@@ -100,13 +100,14 @@ def recorded_fidelity(bag, bone_length, side="right"):
     """The figures of hand `side` in a recording (/tracker/{side}/hand_joints vs /hand/{side}/bones),
     with its lag, palm orientation error and frame counts (module docstring); bone_length: the
     simulated hand's (16,) [m]."""
-    from softhand_sim.commands.lag import REPORT_LAYERS, lag_report
+    from softhand_sim.commands.lag import REPORT_LAYERS, contact_steps, lag_report
     from softhand_sim.ros.bagio import read_tracker
     tt, tj = _decode(read_tracker(bag, side).payloads)
     order = np.argsort(tt, kind="stable")
     st, sb = _poses(bag, hand_topic(side, "bones"))
     figures = fidelity(tt[order], tj[order], st, sb, bone_length)
-    lag = lag_report(bag, hand=side)
+    contacts = contact_steps(bag, side)  # read once: the free-air lag and the skin counts
+    lag = lag_report(bag, hand=side, contacts=contacts)
     def ms(v):  # None where the lag is not defined (that part of the tracked hand hardly moved)
         return round(v, 1) if np.isfinite(v) else None
 
@@ -116,27 +117,16 @@ def recorded_fidelity(bag, bone_length, side="right"):
     if "palm_deg" in lag.get("sim", {}):
         figures["palm_deg"] = {k: round(v, 2) for k, v in lag["sim"]["palm_deg"].items()}
     figures["frames"] = lag["frames"]
-    figures["skin_contacts"] = skin_contact_counts(bag, side)
+    figures["skin_contacts"] = skin_contact_counts(contacts)
     return figures
 
 
-def skin_contact_counts(bag, side="right") -> dict:
-    """Skin-on-skin contacts of hand `side` in a recording's /hand/contacts (sim parameter
-    self_contact): the most in one step and the steps with any; zeros without the topic."""
-    from softhand_sim.topics import SKIN_OBJECT
-    from softhand_sim.physics.hands import HAND_CODE
-    from softhand_sim.ros.bagio import BagError, deserialize, read_topic
-    from softhand_sim.ros.msgs import pointcloud_to_structured
-    try:
-        payloads = read_topic(bag, "/hand/contacts", "sensor_msgs/msg/PointCloud2").payloads
-    except BagError:
+def skin_contact_counts(contacts) -> dict:
+    """Skin-on-skin contacts of one hand (lag.contact_steps; sim parameter self_contact): the most
+    in one step and the steps with any; zeros without /hand/contacts (None)."""
+    if contacts is None:
         return {"max": 0, "steps": 0}
-    counts = []
-    for raw in payloads:
-        cloud = pointcloud_to_structured(deserialize(raw, "sensor_msgs/msg/PointCloud2"))
-        hand = cloud["hand"] if "hand" in cloud.dtype.names else np.zeros(cloud.size, np.uint8)
-        counts.append(int(np.sum((cloud["object"] == SKIN_OBJECT) & (hand == HAND_CODE[side]))))
-    return {"max": max(counts, default=0), "steps": int(np.count_nonzero(counts))}
+    return {"max": int(contacts.skin.max(initial=0)), "steps": int(np.count_nonzero(contacts.skin))}
 
 
 def offline_fidelity(bag, measures):

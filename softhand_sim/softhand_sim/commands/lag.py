@@ -60,7 +60,7 @@ CLOCK_MISMATCH_S = 1.0           # [s] tracker vs output stamps further apart: n
 MIN_TURN_RAD = 0.1      # [rad] spread of the tracked phalanx directions
 SMOOTH = 7              # tracked frames averaged before the spread is taken
 MIN_TRAVEL_M = 0.01     # [m] spread of the tracked palm position
-CONTACTS_TOPIC = "/hand/contacts"
+CONTACTS_TOPIC, CONTACTS_TYPE = "/hand/contacts", "sensor_msgs/msg/PointCloud2"
 FREE_AIR_S = 0.3        # [s] a state this far in time from any contact of its hand is in free air
 MIN_FREE_SAMPLES = 30   # free-air states needed for a free-air lag (half a second at 60 Hz)
 
@@ -244,28 +244,16 @@ def read_run(path, hand: str = "right"):
     from rosbags.typesys import Stores, get_typestore
 
     from softhand_sim.commands.run_summary import tracking_frame_counts
-    from softhand_sim.physics.hands import HAND_CODE
-    from softhand_sim.ros.msgs import pointcloud_to_structured, pose_array_from_cdr, status_node
+    from softhand_sim.ros.msgs import pose_array_from_cdr, status_node
 
-    path = Path(path)
-    if (path / "bag" / "metadata.yaml").is_file():
-        path = path / "bag"
+    path = recording_dir(path)
     store = get_typestore(Stores.ROS2_JAZZY)
     rows = {t: ([], [], []) for t in (tracker_topic(hand), *layer_topics(hand).values())}
-    counts, touching = {}, ([], [], [])
-    code = HAND_CODE[hand]
+    counts = {}
     with Reader(path) as reader:
-        conns = [c for c in reader.connections if c.topic in rows or c.topic in ("/diagnostics", CONTACTS_TOPIC)]
+        conns = [c for c in reader.connections if c.topic in rows or c.topic == "/diagnostics"]
         # (rosbags reads every connection when given none)
         for conn, t_ns, raw in reader.messages(connections=conns) if conns else ():
-            if conn.topic == CONTACTS_TOPIC:  # this hand's contacts in the step (a cloud without the
-                msg = store.deserialize_cdr(raw, conn.msgtype)  # `hand` field is one right hand's)
-                cloud = pointcloud_to_structured(msg)
-                hands = cloud["hand"] if "hand" in cloud.dtype.names else np.zeros(cloud.size, np.uint8)
-                touching[0].append(msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec)
-                touching[1].append(t_ns * 1e-9)
-                touching[2].append(int(np.sum(hands == code)))
-                continue
             if conn.topic == "/diagnostics":
                 for status in store.deserialize_cdr(raw, conn.msgtype).status:
                     values = {kv.key: kv.value for kv in status.values}
@@ -281,9 +269,48 @@ def read_run(path, hand: str = "right"):
     for topic, (stamps, recv, poses) in rows.items():
         if poses and len({p.shape for p in poses}) == 1:
             out[topic] = (np.asarray(stamps), np.asarray(recv), np.asarray(poses))
-    if touching[0]:  # (header stamps, receive times, this hand's contact count) per step
-        out[CONTACTS_TOPIC] = tuple(np.asarray(x) for x in touching)
     return out, counts
+
+
+def recording_dir(path) -> Path:
+    """The rosbag2 directory of a recording or of a run directory (its bag/)."""
+    path = Path(path)
+    return path / "bag" if (path / "bag" / "metadata.yaml").is_file() else path
+
+
+@dataclass
+class ContactSteps:
+    """One hand's contacts per simulation step of a recording's /hand/contacts: header stamps [s],
+    receive times [s], the hand's contacts and, of them, skin on skin (sim parameter self_contact)."""
+
+    stamp: np.ndarray
+    recv: np.ndarray
+    count: np.ndarray
+    skin: np.ndarray
+
+
+def contact_steps(path, hand: str = "right") -> ContactSteps | None:
+    """The ContactSteps of hand `hand` (its `hand` field; a cloud recorded before two hands is one
+    right hand's), or None when the recording has no /hand/contacts."""
+    from softhand_sim.physics.hands import HAND_CODE
+    from softhand_sim.ros.bagio import BagError, deserialize, read_topic
+    from softhand_sim.ros.msgs import contacts_cloud_to_numpy, stamp_to_seconds
+    from softhand_sim.topics import SKIN_OBJECT
+
+    try:
+        data = read_topic(recording_dir(path), CONTACTS_TOPIC, CONTACTS_TYPE)
+    except BagError:
+        return None
+    stamp, count, skin = [], [], []
+    for raw in data.payloads:
+        msg = deserialize(raw, CONTACTS_TYPE)
+        c = contacts_cloud_to_numpy(msg)
+        mine = c["hand"] == HAND_CODE[hand]
+        stamp.append(stamp_to_seconds(msg.header.stamp))
+        count.append(int(mine.sum()))
+        skin.append(int(np.sum(mine & (c["object"] == SKIN_OBJECT))))
+    return ContactSteps(np.asarray(stamp), 1e-9 * np.asarray(data.stamps_ns, np.float64),
+                        np.asarray(count), np.asarray(skin))
 
 
 def free_air(t, contact_t, contact_count, margin=FREE_AIR_S) -> np.ndarray:
@@ -304,12 +331,18 @@ def _sorted(t, poses) -> Series:
     return Series(np.asarray(t)[order], np.asarray(poses)[order])
 
 
-def lag_report(path, hand: str = "right", time_base: str = "auto") -> dict:
+_READ = object()  # lag_report's contacts: read them from the recording
+
+
+def lag_report(path, hand: str = "right", time_base: str = "auto", contacts=_READ) -> dict:
     """The report of a recording (module docstring): {time_base, frames, intermediate, sim, ...}.
 
     time_base: "stamp" (header stamps), "receive" (recording times) or "auto" (stamps when the
-    tracker's and the outputs' are on one clock, else receive times)."""
+    tracker's and the outputs' are on one clock, else receive times). contacts: the hand's
+    contact_steps when the caller has them (None: the recording has none)."""
     data, counts = read_run(path, hand)
+    if contacts is _READ:
+        contacts = contact_steps(path, hand)
     tracker, layers = tracker_topic(hand), layer_topics(hand)
     if tracker not in data:
         raise ValueError(f"{path}: no {tracker} in the recording")
@@ -334,11 +367,11 @@ def lag_report(path, hand: str = "right", time_base: str = "auto") -> dict:
             s = data[topic]
             report[name] = layer_lag(ref, _sorted(s[col], s[2]), ref_spread=ref_spread)
             report[name]["messages"] = int(len(s[0]))
-    if layers["sim"] in data and CONTACTS_TOPIC in data:
-        s, c = data[layers["sim"]], data[CONTACTS_TOPIC]
-        free = free_air(s[col], c[col], c[2])
+    if layers["sim"] in data and contacts is not None:
+        s, c_t = data[layers["sim"]], (contacts.stamp, contacts.recv)[col]
+        free = free_air(s[col], c_t, contacts.count)
         if free.sum() >= MIN_FREE_SAMPLES:  # its own stillness rule: what the free-air windows move
-            ref_free = free_air(ref.t, c[col], c[2])
+            ref_free = free_air(ref.t, c_t, contacts.count)
             report["sim_free_air"] = layer_lag(ref, _sorted(s[col][free], s[2][free]),
                                                ref_spread=spread(Series(ref.t[ref_free], ref.poses[ref_free])))
             report["sim_free_air"]["messages"] = int(free.sum())

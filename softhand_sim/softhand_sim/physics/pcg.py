@@ -249,11 +249,12 @@ def pcg(indptr, indices, values, b, x, tol, max_iter, kind, diag_slot, node_slot
     L K L^T, L (3 x n) the row's weights on its nodes' 3 DOFs each (energies/self_contact.
     gauss_newton_rows: skin-skin contacts coupling two tets, outside the CSR pattern; the
     preconditioner is built from the CSR matrix alone). Stops when ||r|| <= tol ||b||, or when
-    r^T z <= energy_floor (z = P^-1 r: the error e = A^-1 r in A's energy norm, e^T A e, which P <= A
-    overestimates; A = M + dt^2 H >= M, so e^T M e <= energy_floor: with energy_floor = m v^2 the
-    velocity error's mass-weighted RMS is below v), or after max_iter iterations. fac: Factor.arrays (used by PRECOND_FACTOR). triplets: the pattern is made of
-    column triplets (triplet_pattern; faster products). Returns (iterations, relative residual
-    ||r||/||b||, hit_cap)."""
+    r^T z <= energy_floor (z = P^-1 r: the error e = A^-1 r in A's energy norm, e^T A e, which
+    P <= A overestimates; A = M + dt^2 H >= M, so e^T M e <= energy_floor: with energy_floor =
+    m v^2 the velocity error's mass-weighted RMS is below v), or after max_iter iterations.
+    fac: Factor.arrays (used by PRECOND_FACTOR). triplets: the pattern is made of column triplets
+    (triplet_pattern; faster products). Returns (iterations, relative residual ||r||/||b||,
+    hit_cap)."""
     return _pcg(indptr, indices, values, b, x, tol, max_iter, kind, diag_slot, node_slots, body_slots,
                 body_dof0, diag_inv, node_inv, body_inv, r, z, p, Ap, fac, triplets, *low_rank,
                 float(energy_floor))

@@ -347,12 +347,13 @@ def handover_aim(progress=None):
     return seen[-1]
 
 
-def tracker_frames(name, noise=True, aim=None):
+def tracker_frames(name, noise=True, aim=None, position_noise=None):
     """{side: (stamps_ns (n,) int64, joints (n, 26, 7))} of the two-hand bag `name` ('handover',
     'two_hand_lift'): each hand's joints at BAG_RATE with the sample bags' timing jitter and
-    position noise (tracker_bags.sample's, seeded per hand). aim: the handover's ball position for
-    the left grip (handover_aim() when None)."""
-    from softhand_sim.scenarios.tracker_bags import POSITION_NOISE, STAMP0_NS, TIMING_JITTER
+    position noise (tracker_bags.sample's, seeded per hand; `position_noise` [m] instead of
+    POSITION_NOISE when given). aim: the handover's ball position for the left grip
+    (handover_aim() when None)."""
+    from softhand_sim.scenarios.tracker_bags import STAMP0_NS, TIMING_JITTER, noise_of
     from softhand_sim.scene import load_scene
 
     scene = load_scene()
@@ -372,7 +373,7 @@ def tracker_frames(name, noise=True, aim=None):
         times = np.clip(times, 0.0, script.duration)
         joints = np.stack([hand_joints(side, *script.poses(t)[side]) for t in times])
         if noise:
-            joints[:, :, :3] += rng.normal(0.0, POSITION_NOISE, size=joints[:, :, :3].shape)
+            joints[:, :, :3] += rng.normal(0.0, noise_of(None, position_noise), size=joints[:, :, :3].shape)
         out[side] = (STAMP0_NS + np.round(times * 1e9).astype(np.int64), joints)
     return out
 

@@ -473,6 +473,14 @@ POSITION_NOISE = 0.00005
 NOISY_TRACKER = 0.0015
 
 
+def noise_of(own: float | None, position_noise: float | None = None) -> float:
+    """[m] the position noise of a bag: its own where it has one (fast_dropout), else the one asked
+    for (tools/make_bags.py --position-noise), else POSITION_NOISE."""
+    if own is not None:
+        return own
+    return POSITION_NOISE if position_noise is None else float(position_noise)
+
+
 @dataclass(frozen=True)
 class Scenario:
     """How a bag is made: motion factory, mean rate [Hz], gap [s] or None, seed, the hand's
@@ -512,11 +520,12 @@ SIZED_SCENARIOS = {
 TIMING_JITTER = 0.0015   # [s] uniform +- jitter of each capture time around the nominal period
 
 
-def sample(name: str, noise: bool = True):
+def sample(name: str, noise: bool = True, position_noise: float | None = None):
     """(stamps_ns (n,) int64, joints (n, 26, 7), clean_joints (n, 26, 7)) of scenario `name`.
 
     Capture times: k / rate plus uniform jitter, dropping those inside the scenario's gap.
     `joints` has the position noise (orientations are the clean ones); `clean_joints` has none.
+    The noise is the scenario's own, else `position_noise` [m], else POSITION_NOISE.
     """
     known = {**SCENARIOS, **SIZED_SCENARIOS}
     if name not in known:
@@ -535,7 +544,7 @@ def sample(name: str, noise: bool = True):
     clean = np.stack([forward_kinematics(*motion(t), dims)[0] for t in times])
     noisy = clean.copy()
     if noise:
-        sd = POSITION_NOISE if sc.noise is None else sc.noise
+        sd = noise_of(sc.noise, position_noise)
         noisy[:, :, :3] += rng.normal(0.0, sd, size=noisy[:, :, :3].shape)
     stamps = STAMP0_NS + np.round(times * 1e9).astype(np.int64)
     return stamps, noisy, clean
