@@ -220,6 +220,30 @@ def test_spherical_joint_hessian_gauss_newton_near_closed_joint():
     assert np.linalg.eigvalsh(H).min() >= -1e-6
 
 
+@pytest.mark.parametrize("seed", [1, 2, 3])
+def test_angular_row_hessian_is_its_gauss_newton_outer_product(seed):
+    """One active angular row (a universal joint's twist lock; no spherical spring, limits far):
+    U = 1/2 k h^2, grad = k h ds, so the Gauss-Newton Hessian k ds ds^T is exactly
+    grad grad^T / (2 U), and the gradient itself is checked against differences above. The
+    kernel writes only the rotation entries of the row: that sum must equal the full outer
+    product over all 12 coordinates (the positions' entries are 0)."""
+    rng = np.random.default_rng(seed)
+    body_x = rng.normal(size=(2, 3)) * 0.02
+    body_q = np.array([random_quat(rng) for _ in range(2)])
+    par, chi = np.array([0], np.int32), np.array([1], np.int32)
+    rp, rc = rng.normal(size=(1, 3)) * 0.01, rng.normal(size=(1, 3)) * 0.01
+    rest = np.array([random_quat(rng)])
+    wide = np.array([[[-10.0, 10.0], [-10.0, 10.0]]])
+    rows = joints.angular_rows([2], np.array([[0, 1.0, 0]]), np.array([[0, 0, 1.0]]), wide, 20.0, 30.0)
+    slots = np.arange(144, dtype=np.int32).reshape(1, 12, 12)
+    H, g = np.zeros(144), np.zeros(12)
+    e = joints.add_all(body_x, body_q, par, chi, rp, rc, 0.0, rest, *rows, 0, g, slots, H, True)
+    assert e > 1e-6
+    assert np.all(g[:3] == 0.0) and np.all(g[6:9] == 0.0)
+    np.testing.assert_allclose(H.reshape(12, 12), np.outer(g, g) / (2.0 * e), rtol=1e-9,
+                               atol=1e-12 * np.abs(H).max())
+
+
 def test_bone_tissue_gradient_and_hessian():
     """Eq. 11: gradient equals central differences over nodes and the bone (x, exp-map rotation);
     the Gauss-Newton Hessian is exact in the node block (linear there) and symmetric PSD."""

@@ -176,18 +176,6 @@ def cross3(a, b) -> np.ndarray:
     return np.array((a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0))
 
 
-@njit(cache=True)
-def skew(v):
-    m = np.zeros((3, 3))
-    m[0, 1] = -v[2]
-    m[0, 2] = v[1]
-    m[1, 0] = v[2]
-    m[1, 2] = -v[0]
-    m[2, 0] = -v[1]
-    m[2, 1] = v[0]
-    return m
-
-
 def quat_from_axes(x_axis, z_hint):
     """Quaternion of the frame whose x is `x_axis` and whose z is `z_hint` made orthogonal to x.
 
@@ -201,23 +189,6 @@ def quat_from_axes(x_axis, z_hint):
     z = z / np.linalg.norm(z)
     y = np.cross(z, x)
     return matrix_to_quat(np.column_stack((x, y, z)))
-
-
-@njit(cache=True)
-def so3_left_jacobian_inv(phi):
-    """Inverse left Jacobian of SO(3): log(exp(d) exp(phi)) = phi + J_l^-1(phi) d + O(d^2).
-
-    J_l^-1 = I - 1/2 [phi]x + c [phi]x^2, c = 1/t^2 - (1 + cos t) / (2 t sin t), t = |phi|
-    (c -> 1/12 for small t). The right one is J_r^-1(phi) = J_l^-1(-phi).
-    """
-    t2 = phi[0] * phi[0] + phi[1] * phi[1] + phi[2] * phi[2]
-    t = np.sqrt(t2)
-    if t < 1e-4:
-        c = 1.0 / 12.0 + t2 / 720.0
-    else:
-        c = 1.0 / t2 - (1.0 + np.cos(t)) / (2.0 * t * np.sin(t))
-    k = skew(phi)
-    return np.eye(3) - 0.5 * k + c * (k @ k)
 
 
 @njit(cache=True)

@@ -16,8 +16,7 @@ k [N/m], k_a [N m/rad], angles [rad].
 import numpy as np
 from numba import njit
 
-from softhand_sim.physics.rotations import (quat_conj, quat_mul, quat_to_matrix, relative_rotvec,
-                         so3_left_jacobian_inv)
+from softhand_sim.physics.rotations import quat_matrix_entries
 
 JOINT_SPHERICAL, JOINT_HINGE, JOINT_UNIVERSAL = 0, 1, 2
 
@@ -60,63 +59,98 @@ def angular_rows(joint_type, flex_axis, abd_axis, limits, k_lock, k_limit):
 @njit(cache=True)
 def _spherical(j, body_x, body_q, parent, child, r_parent, r_child, k, g, H, want_hess, Jm):
     """Eq. 6 for joint j: energy; writes g (12,), H (12,12) over (x_p, th_p, x_c, th_c).
-    Jm: (3,12) scratch. The products are written out: as `@` on these small arrays (a BLAS call
-    each) they were most of the joints' time."""
+    Jm: (3,12) scratch. Scalar products throughout: as `@` on these small arrays (a BLAS call
+    each) and with a matrix allocated per call they were most of the joints' time."""
     p, c = parent[j], child[j]
-    rp = quat_to_matrix(body_q[p]) @ r_parent[j]
-    rc = quat_to_matrix(body_q[c]) @ r_child[j]
-    d = body_x[p] + rp - body_x[c] - rc
+    qp, qc = body_q[p], body_q[c]
+    a00, a01, a02, a10, a11, a12, a20, a21, a22 = quat_matrix_entries(qp[0], qp[1], qp[2], qp[3])
+    b00, b01, b02, b10, b11, b12, b20, b21, b22 = quat_matrix_entries(qc[0], qc[1], qc[2], qc[3])
+    u0, u1, u2 = r_parent[j, 0], r_parent[j, 1], r_parent[j, 2]
+    w0, w1, w2 = r_child[j, 0], r_child[j, 1], r_child[j, 2]
+    rp0, rp1, rp2 = a00 * u0 + a01 * u1 + a02 * u2, a10 * u0 + a11 * u1 + a12 * u2, a20 * u0 + a21 * u1 + a22 * u2
+    rc0, rc1, rc2 = b00 * w0 + b01 * w1 + b02 * w2, b10 * w0 + b11 * w1 + b12 * w2, b20 * w0 + b21 * w1 + b22 * w2
+    d0 = body_x[p, 0] + rp0 - body_x[c, 0] - rc0
+    d1 = body_x[p, 1] + rp1 - body_x[c, 1] - rc1
+    d2 = body_x[p, 2] + rp2 - body_x[c, 2] - rc2
     Jm[:, :] = 0.0
     for i in range(3):
         Jm[i, i] = 1.0
         Jm[i, 6 + i] = -1.0
     # d(R r)/d delta = -[R r]x
-    Jm[0, 4], Jm[0, 5] = rp[2], -rp[1]
-    Jm[1, 3], Jm[1, 5] = -rp[2], rp[0]
-    Jm[2, 3], Jm[2, 4] = rp[1], -rp[0]
-    Jm[0, 10], Jm[0, 11] = -rc[2], rc[1]
-    Jm[1, 9], Jm[1, 11] = rc[2], -rc[0]
-    Jm[2, 9], Jm[2, 10] = -rc[1], rc[0]
+    Jm[0, 4], Jm[0, 5] = rp2, -rp1
+    Jm[1, 3], Jm[1, 5] = -rp2, rp0
+    Jm[2, 3], Jm[2, 4] = rp1, -rp0
+    Jm[0, 10], Jm[0, 11] = -rc2, rc1
+    Jm[1, 9], Jm[1, 11] = rc2, -rc0
+    Jm[2, 9], Jm[2, 10] = -rc1, rc0
     for a in range(12):
-        g[a] = k * (Jm[0, a] * d[0] + Jm[1, a] * d[1] + Jm[2, a] * d[2])
+        g[a] = k * (Jm[0, a] * d0 + Jm[1, a] * d1 + Jm[2, a] * d2)
     if want_hess:
         for a in range(12):
             for b in range(a, 12):
                 h = k * (Jm[0, a] * Jm[0, b] + Jm[1, a] * Jm[1, b] + Jm[2, a] * Jm[2, b])
                 H[a, b] = h
                 H[b, a] = h
-    return 0.5 * k * (d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
+    return 0.5 * k * (d0 * d0 + d1 * d1 + d2 * d2)
+
+
+@njit(cache=True, inline="always")
+def _qmul(ax, ay, az, aw, bx, by, bz, bw):
+    """Hamilton product a * b on scalars (rotations.quat_mul without its array)."""
+    return (aw * bx + ax * bw + ay * bz - az * by, aw * by - ax * bz + ay * bw + az * bx,
+            aw * bz + ax * by - ay * bx + az * bw, aw * bw - ax * bx - ay * by - az * bz)
 
 
 @njit(cache=True)
-def _angular(r, body_q, parent, child, rest_rot, row_joint, row_axis, row_lo, row_hi, row_k,
-             g, H, want_hess):
-    """One angular row: (energy, active); writes g (12,), H (12,12) over (x_p, th_p, x_c, th_c)
-    when active (a locked axis off its lock, a limit passed); an inactive row writes nothing."""
+def _angular(r, body_q, parent, child, rest_rot, row_joint, row_axis, row_lo, row_hi, row_k, ds):
+    """One angular row: (energy, k h); when active (a locked axis off its lock, a limit passed)
+    writes ds (3,): ds/d(th_c) (ds/d(th_p) = -ds, ds/dx = 0). An inactive row returns k h = 0.
+
+    s = a_w . phi with phi = log(q_c q_rest^-1 q_p^-1): ds/d(th_c) = J_l^-1(phi)^T a_w,
+    ds/d(th_p) = -J_r^-1(phi)^T a_w + a_w x phi, and with J^-1(phi)^T a = a + 1/2 phi x a + c phi x
+    (phi x a) (J_r^-1(phi) = J_l^-1(-phi), c even in phi) the two are exact negatives."""
     j = row_joint[r]
     p, c = parent[j], child[j]
-    qa = quat_mul(body_q[c], quat_conj(rest_rot[j]))
-    phi = relative_rotvec(qa, body_q[p])
-    a_w = quat_to_matrix(body_q[p]) @ row_axis[r]
-    s = np.dot(a_w, phi)
+    qc, qr, qp = body_q[c], rest_rot[j], body_q[p]
+    ax, ay, az, aw = _qmul(qc[0], qc[1], qc[2], qc[3], -qr[0], -qr[1], -qr[2], qr[3])
+    x, y, z, w = _qmul(ax, ay, az, aw, -qp[0], -qp[1], -qp[2], qp[3])
+    # phi = quat_log (shortest arc), as rotations.quat_log
+    if w < 0.0:
+        x, y, z, w = -x, -y, -z, -w
+    sn = np.sqrt(x * x + y * y + z * z)
+    if sn < 1e-8:
+        f = 2.0
+    else:
+        f = 2.0 * np.arctan2(sn, w) / sn
+    f0, f1, f2 = f * x, f * y, f * z
+    m00, m01, m02, m10, m11, m12, m20, m21, m22 = quat_matrix_entries(qp[0], qp[1], qp[2], qp[3])
+    e0, e1, e2 = row_axis[r, 0], row_axis[r, 1], row_axis[r, 2]
+    a0 = m00 * e0 + m01 * e1 + m02 * e2
+    a1 = m10 * e0 + m11 * e1 + m12 * e2
+    a2 = m20 * e0 + m21 * e1 + m22 * e2
+    s = a0 * f0 + a1 * f1 + a2 * f2
     h = 0.0
     if s > row_hi[r]:
         h = s - row_hi[r]
     elif s < row_lo[r]:
         h = s - row_lo[r]
     if h == 0.0:
-        return 0.0, False
-    ds = np.zeros(12)
-    ds[9:12] = so3_left_jacobian_inv(phi).T @ a_w
-    cr = np.cross(a_w, phi)
-    ds[3:6] = -(so3_left_jacobian_inv(-phi).T @ a_w) + cr
+        return 0.0, 0.0
+    # J_l^-1(phi) = I - 1/2 [phi]x + c [phi]x^2, c = 1/t^2 - (1 + cos t) / (2 t sin t), t = |phi|
+    # (c -> 1/12 for small t)
+    t2 = f0 * f0 + f1 * f1 + f2 * f2
+    t = np.sqrt(t2)
+    if t < 1e-4:
+        cc = 1.0 / 12.0 + t2 / 720.0
+    else:
+        cc = 1.0 / t2 - (1.0 + np.cos(t)) / (2.0 * t * np.sin(t))
+    x0, x1, x2 = f1 * a2 - f2 * a1, f2 * a0 - f0 * a2, f0 * a1 - f1 * a0        # phi x a
+    y0, y1, y2 = f1 * x2 - f2 * x1, f2 * x0 - f0 * x2, f0 * x1 - f1 * x0        # phi x (phi x a)
+    ds[0] = a0 + 0.5 * x0 + cc * y0
+    ds[1] = a1 + 0.5 * x1 + cc * y1
+    ds[2] = a2 + 0.5 * x2 + cc * y2
     k = row_k[r]
-    g[:] = k * h * ds
-    if want_hess:
-        for i in range(12):
-            for jj in range(12):
-                H[i, jj] = k * ds[i] * ds[jj]
-    return 0.5 * k * h * h, True
+    return 0.5 * k * h * h, k * h
 
 
 @njit(cache=True)
@@ -127,21 +161,12 @@ def add_all(body_x, body_q, parent, child, r_parent, r_child, k_lin, rest_rot, r
     g = np.empty(12)
     H = np.empty((12, 12))
     Jm = np.empty((3, 12))
+    ds = np.empty(3)
     e_sum = 0.0
     nj = parent.shape[0]
-    for step in range(nj + row_joint.shape[0]):
-        if step < nj:
-            j = step
-            e_sum += _spherical(j, body_x, body_q, parent, child, r_parent, r_child, k_lin,
-                                g, H, want_hess, Jm)
-        else:
-            r = step - nj
-            j = row_joint[r]
-            e, active = _angular(r, body_q, parent, child, rest_rot, row_joint, row_axis, row_lo,
-                                 row_hi, row_k, g, H, want_hess)
-            if not active:  # a limit not reached: nothing to add (most limit rows, most steps)
-                continue
-            e_sum += e
+    for j in range(nj):
+        e_sum += _spherical(j, body_x, body_q, parent, child, r_parent, r_child, k_lin,
+                            g, H, want_hess, Jm)
         op = body_dof0 + 6 * parent[j]
         oc = body_dof0 + 6 * child[j]
         for i in range(6):
@@ -151,4 +176,25 @@ def add_all(body_x, body_q, parent, child, r_parent, r_child, k_lin, rest_rot, r
             for a in range(12):
                 for b in range(12):
                     values[slots[j, a, b]] += H[a, b]
+    for r in range(row_joint.shape[0]):
+        e, kh = _angular(r, body_q, parent, child, rest_rot, row_joint, row_axis, row_lo, row_hi,
+                         row_k, ds)
+        if kh == 0.0:  # a limit not reached: nothing to add (most limit rows, most steps)
+            continue
+        e_sum += e
+        j = row_joint[r]
+        op = body_dof0 + 6 * parent[j] + 3  # the rotation entries: ds is 0 on the positions
+        oc = body_dof0 + 6 * child[j] + 3
+        for i in range(3):
+            grad[op + i] -= kh * ds[i]
+            grad[oc + i] += kh * ds[i]
+        if want_hess:  # k ds ds^T on the (th_p, th_c) entries only: [[D, -D], [-D, D]], D = k ds ds^T
+            k = row_k[r]
+            for a in range(3):
+                for b in range(3):
+                    d = k * ds[a] * ds[b]
+                    values[slots[j, 3 + a, 3 + b]] += d
+                    values[slots[j, 9 + a, 9 + b]] += d
+                    values[slots[j, 3 + a, 9 + b]] -= d
+                    values[slots[j, 9 + a, 3 + b]] -= d
     return e_sum
