@@ -227,13 +227,16 @@ def test_skin_contact_forces_are_internal_momentum_follows_the_external_force():
 
 def test_broad_phase_misses_no_candidate_of_the_deformed_fist():
     """The collide stage's broad phase (bounds of each segment's skin and of its clusters of 32
-    points, from the current skin) keeps every (point, segment) pair a brute-force pass keeps:
-    on the coarse hand deformed by the fist (skin up to centimetres off its bone's rigid motion),
-    a fresh system tests exactly the allowed pairs whose point lies in the other segment's box."""
+    points, from the current skin, and the field at each cluster's centre) keeps every (point,
+    segment) pair a brute-force pass keeps: on the coarse hand deformed by the fist (skin up to
+    centimetres off its bone's rigid motion), a fresh system hands the anchor step exactly the
+    allowed pairs whose point lies in the other segment's box and within margin of its field, and
+    looks up the field of fewer points than lie in those boxes (the clusters' field test)."""
     from softhand_sim.handmodel import load_or_build_hand
     from softhand_sim.handmodel.rigid_skin import skin_segments
     from softhand_sim.physics.contact.self_contact import build_self_contact_system
     from softhand_sim.physics.embedded import embedded_positions
+    from softhand_sim.physics.contact.sdf import grid_value
     from softhand_sim.physics.rotations import quat_to_matrix
     from softhand_sim.scenarios.self_contact import Fist
     asset = load_or_build_hand(resolution="coarse")
@@ -252,15 +255,19 @@ def test_broad_phase_misses_no_candidate_of_the_deformed_fist():
     m = sc.model
     xp = np.zeros((m.point_count, 3))
     embedded_positions(state.node_x, model.tets, m.point_tet, m.point_bary, xp)
-    expected = 0
+    boxed = near = 0
     for B in range(m.segment_count):
         b = m.seg_body[B]
         R = quat_to_matrix(state.body_q[b])
         local = (xp - (state.body_x[b] - R @ model.body_com_local[b])) @ R
         inside = ((local >= m.seg_lo[B] - m.margin) & (local <= m.seg_hi[B] + m.margin)).all(axis=1)
         allowed = (m.pair_ok[m.point_segment, B] == 1) & ((m.point_exclude >> np.uint64(B)) & np.uint64(1) == 0)
-        expected += int((inside & allowed).sum())
-    assert fresh.tested == expected > 1000
+        boxed += int((inside & allowed).sum())
+        grid = m.grid_values[m.grid_adr[B, 0]:m.grid_adr[B, 1]]
+        near += sum(grid_value(grid, m.grid_origin[B], m.grid_voxel[B], m.grid_dims[B], *p) < m.margin
+                    for p in local[inside & allowed])
+    assert fresh.near == near > 100
+    assert near < fresh.tested < boxed and boxed > 1000
 
 
 def test_tight_fist_stays_within_1_5_mm_with_bounded_forces():
