@@ -78,6 +78,29 @@ def test_primitive_value_within_half_voxel_and_unit_gradient(shape, dims):
     assert cos.min() > 0.99
 
 
+def test_lookup_is_grid_value_and_its_one_voxel_central_differences():
+    """grid_lookup and grid_gradient compute the inner cells' seven trilinear values from one
+    cell position: the same numbers (to round-off) as grid_value at the point and one voxel either
+    side along each axis, inside the grid, in its outermost voxel layer and outside it."""
+    grid = sdf.build_grid("capsule", {"radius": 0.02, "length": 0.06})
+    args = (grid.values, grid.origin, grid.voxel, grid.dims)
+    lo, hi = grid.origin, grid.origin + grid.voxel * (grid.dims - 1)
+    rng = np.random.default_rng(4)
+    pts = np.concatenate([rng.uniform(lo, hi, size=(3000, 3)),                  # mostly inner cells
+                          rng.uniform(lo - 2 * grid.voxel, lo + 2 * grid.voxel, size=(500, 3)),
+                          rng.uniform(hi - 2 * grid.voxel, hi + 2 * grid.voxel, size=(500, 3))])
+    h, worst, inner = grid.voxel, 0.0, 0
+    for p in pts:
+        ref = [sdf.grid_value(*args, *p)]
+        for e in np.eye(3):
+            ref.append((sdf.grid_value(*args, *(p + h * e)) - sdf.grid_value(*args, *(p - h * e))) / (2 * h))
+        got = sdf.grid_lookup(*args, *p)
+        worst = max(worst, np.abs(np.subtract(got, ref)).max(), np.abs(np.subtract(sdf.grid_gradient(*args, *p), ref[1:])).max())
+        inner += bool(np.all(p >= lo + h) and np.all(p < hi - h))
+    assert worst < 1e-9  # values ~0.1 m, gradients ~1: round-off
+    assert 2000 < inner < len(pts) - 500  # both paths taken
+
+
 def test_points_outside_grid_are_positive_and_grow_with_distance():
     """Outside the grid box: value = value at the projection onto the box + distance to it (> 0)."""
     grid = sdf.build_grid("sphere", {"radius": 0.04})
