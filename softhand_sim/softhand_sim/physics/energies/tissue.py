@@ -29,7 +29,8 @@ Rotations are kept per tet as quaternions tet_q (T,4) [x,y,z,w], warm-started ea
 import numpy as np
 from numba import njit
 
-from softhand_sim.physics.rotations import polar_rotation_update, quat_matrix_entries, quat_to_matrix
+from softhand_sim.physics.rotations import (polar_rotation_update, polar_update_scalars,
+                                            quat_matrix_entries, quat_to_matrix)
 
 
 def rest_data(tet_nodes, tets, youngs, poisson):
@@ -523,50 +524,6 @@ def is_isotropic_K0(K0, Dm_inv, vol, lam, mu, rtol=1e-9):
 
 
 @njit(cache=True)
-def _polar_update(F, qx, qy, qz, qw, iterations):
-    """polar_rotation_update (rotations.py, Mueller et al. 2016) on scalars, no allocation; the
-    exponential map uses its Taylor series below 0.1 rad (truncation < 1e-19, i.e. round-off)."""
-    for _ in range(iterations):
-        r00, r01, r02, r10, r11, r12, r20, r21, r22 = quat_matrix_entries(qx, qy, qz, qw)
-        wx = (r10 * F[2, 0] - r20 * F[1, 0]) + (r11 * F[2, 1] - r21 * F[1, 1]) + (r12 * F[2, 2] - r22 * F[1, 2])
-        wy = (r20 * F[0, 0] - r00 * F[2, 0]) + (r21 * F[0, 1] - r01 * F[2, 1]) + (r22 * F[0, 2] - r02 * F[2, 2])
-        wz = (r00 * F[1, 0] - r10 * F[0, 0]) + (r01 * F[1, 1] - r11 * F[0, 1]) + (r02 * F[1, 2] - r12 * F[0, 2])
-        den = (r00 * F[0, 0] + r10 * F[1, 0] + r20 * F[2, 0]) + (r01 * F[0, 1] + r11 * F[1, 1] + r21 * F[2, 1]) \
-            + (r02 * F[0, 2] + r12 * F[1, 2] + r22 * F[2, 2])
-        s = 1.0 / (abs(den) + 1e-9)
-        wx *= s
-        wy *= s
-        wz *= s
-        a2 = wx * wx + wy * wy + wz * wz
-        if a2 < 1e-24:  # angle < 1e-12
-            break
-        if a2 < 1e-16:  # rotations.quat_exp below its _SMALL_ANGLE: (w/2, 1) normalized
-            ex, ey, ez, ew = 0.5 * wx, 0.5 * wy, 0.5 * wz, 1.0
-            n = np.sqrt(ex * ex + ey * ey + ez * ez + 1.0)
-            ex, ey, ez, ew = ex / n, ey / n, ez / n, ew / n
-        elif a2 < 1e-2:
-            h2 = 0.25 * a2  # (angle / 2)^2
-            ew = 1.0 - h2 / 2.0 * (1.0 - h2 / 12.0 * (1.0 - h2 / 30.0 * (1.0 - h2 / 56.0)))
-            sh = 0.5 * (1.0 - h2 / 6.0 * (1.0 - h2 / 20.0 * (1.0 - h2 / 42.0 * (1.0 - h2 / 72.0))))
-            ex, ey, ez = sh * wx, sh * wy, sh * wz
-        else:
-            angle = np.sqrt(a2)
-            sh = np.sin(0.5 * angle) / angle
-            ex, ey, ez, ew = sh * wx, sh * wy, sh * wz, np.cos(0.5 * angle)
-        # q <- normalize(e * q)
-        nx = ew * qx + ex * qw + ey * qz - ez * qy
-        ny = ew * qy - ex * qz + ey * qw + ez * qx
-        nz = ew * qz + ex * qy - ey * qx + ez * qw
-        nw = ew * qw - ex * qx - ey * qy - ez * qz
-        n = np.sqrt(nx * nx + ny * ny + nz * nz + nw * nw)
-        if n == 0.0:
-            qx, qy, qz, qw = 0.0, 0.0, 0.0, 1.0
-        else:
-            qx, qy, qz, qw = nx / n, ny / n, nz / n, nw / n
-    return qx, qy, qz, qw
-
-
-@njit(cache=True)
 def add_all_fused(x, tets, Dm_inv, vol, lam, mu, tet_q, iterations, nl_k, nl_wmax, grad, slots,
                   values, stress_stiffness=False):
     """update_rotations + add_all in one pass for an isotropic material (lam, mu [Pa]; K0 not
@@ -600,7 +557,7 @@ def add_all_fused(x, tets, Dm_inv, vol, lam, mu, tet_q, iterations, nl_k, nl_wma
         for r in range(3):
             for c in range(3):
                 F[r, c] = D[r, 0] * gr[1, c] + D[r, 1] * gr[2, c] + D[r, 2] * gr[3, c]
-        qx, qy, qz, qw = _polar_update(F, tet_q[e, 0], tet_q[e, 1], tet_q[e, 2], tet_q[e, 3], iterations)
+        qx, qy, qz, qw = polar_update_scalars(F, tet_q[e, 0], tet_q[e, 1], tet_q[e, 2], tet_q[e, 3], iterations)
         tet_q[e, 0], tet_q[e, 1], tet_q[e, 2], tet_q[e, 3] = qx, qy, qz, qw
         R00, R01, R02, R10, R11, R12, R20, R21, R22 = quat_matrix_entries(qx, qy, qz, qw)
         # G = R^T F, eps = sym(G) - I, sigma = lam tr(eps) I + 2 mu eps
