@@ -119,7 +119,8 @@ def sim_diag(diags):
 
 def counts(diags):
     d = tracking_diag(diags)
-    return {k: int(v) for k, v in d.items() if k.startswith("rejected_") or k.startswith("frames_")}
+    return {k: int(v) for k, v in d.items() if k.startswith("rejected_") or k.startswith("frames_")
+            or k == "holds"}
 
 
 def settle_diag(g, diags, node):
@@ -241,7 +242,11 @@ def test_bad_frames_rejected_counted_logged_never_published(ros_env):
         moved = {k for k in d if k.startswith("rejected_")}
         assert moved == {f"rejected_{r}" for r in sent_bad}, d
         assert d["frames_rejected"] == sum(d[f"rejected_{r}"] for r in sent_bad)
-        assert MIN_DELIVERED * sent_valid <= d["frames_accepted"] <= sent_valid, d
+        # a stall of the node beyond tracker_timeout (a loaded machine) enters a hold, and after a
+        # hold any stamp is taken by design (loop.TrackingLoop.on_tracker: a restarted tracker
+        # resyncs): a duplicate or old stamp right after one is accepted. One such frame made this
+        # fail once in a make test (141 accepted of 140 valid sent)
+        assert MIN_DELIVERED * sent_valid <= d["frames_accepted"] <= sent_valid + d.get("holds", 0), f"{d}"
 
         # (2) burst: 5,000 valid frames at 5,000/s
         burst = [msg(*next_valid()) for _ in range(BURST_N)]
