@@ -197,14 +197,7 @@ def grid_value(values, origin, voxel, dims, px, py, pz):
     k = min(int(fz), nz - 2)
     tx, ty, tz = fx - i, fy - j, fz - k
     b = (i * ny + j) * nz + k
-    sy, sx = nz, ny * nz
-    c00 = values[b] + tz * (values[b + 1] - values[b])
-    c01 = values[b + sy] + tz * (values[b + sy + 1] - values[b + sy])
-    c10 = values[b + sx] + tz * (values[b + sx + 1] - values[b + sx])
-    c11 = values[b + sx + sy] + tz * (values[b + sx + sy + 1] - values[b + sx + sy])
-    c0 = c00 + ty * (c01 - c00)
-    c1 = c10 + ty * (c11 - c10)
-    return c0 + tx * (c1 - c0) + np.sqrt(ox * ox + oy * oy + oz * oz)
+    return _trilinear(values, b, ny * nz, nz, tx, ty, tz) + np.sqrt(ox * ox + oy * oy + oz * oz)
 
 
 @njit(cache=True)
