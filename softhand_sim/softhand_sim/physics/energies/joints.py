@@ -16,7 +16,7 @@ k [N/m], k_a [N m/rad], angles [rad].
 import numpy as np
 from numba import njit
 
-from softhand_sim.physics.rotations import quat_matrix_entries
+from softhand_sim.physics.rotations import quat_log_scalars, quat_matrix_entries, quat_mul_scalars
 
 JOINT_SPHERICAL, JOINT_HINGE, JOINT_UNIVERSAL = 0, 1, 2
 
@@ -94,13 +94,6 @@ def _spherical(j, body_x, body_q, parent, child, r_parent, r_child, k, g, H, wan
     return 0.5 * k * (d0 * d0 + d1 * d1 + d2 * d2)
 
 
-@njit(cache=True, inline="always")
-def _qmul(ax, ay, az, aw, bx, by, bz, bw):
-    """Hamilton product a * b on scalars (rotations.quat_mul without its array)."""
-    return (aw * bx + ax * bw + ay * bz - az * by, aw * by - ax * bz + ay * bw + az * bx,
-            aw * bz + ax * by - ay * bx + az * bw, aw * bw - ax * bx - ay * by - az * bz)
-
-
 @njit(cache=True)
 def _angular(r, body_q, parent, child, rest_rot, row_joint, row_axis, row_lo, row_hi, row_k, ds):
     """One angular row: (energy, k h); when active (a locked axis off its lock, a limit passed)
@@ -112,17 +105,9 @@ def _angular(r, body_q, parent, child, rest_rot, row_joint, row_axis, row_lo, ro
     j = row_joint[r]
     p, c = parent[j], child[j]
     qc, qr, qp = body_q[c], rest_rot[j], body_q[p]
-    ax, ay, az, aw = _qmul(qc[0], qc[1], qc[2], qc[3], -qr[0], -qr[1], -qr[2], qr[3])
-    x, y, z, w = _qmul(ax, ay, az, aw, -qp[0], -qp[1], -qp[2], qp[3])
-    # phi = quat_log (shortest arc), as rotations.quat_log
-    if w < 0.0:
-        x, y, z, w = -x, -y, -z, -w
-    sn = np.sqrt(x * x + y * y + z * z)
-    if sn < 1e-8:
-        f = 2.0
-    else:
-        f = 2.0 * np.arctan2(sn, w) / sn
-    f0, f1, f2 = f * x, f * y, f * z
+    ax, ay, az, aw = quat_mul_scalars(qc[0], qc[1], qc[2], qc[3], -qr[0], -qr[1], -qr[2], qr[3])
+    x, y, z, w = quat_mul_scalars(ax, ay, az, aw, -qp[0], -qp[1], -qp[2], qp[3])
+    f0, f1, f2 = quat_log_scalars(x, y, z, w)
     m00, m01, m02, m10, m11, m12, m20, m21, m22 = quat_matrix_entries(qp[0], qp[1], qp[2], qp[3])
     e0, e1, e2 = row_axis[r, 0], row_axis[r, 1], row_axis[r, 2]
     a0 = m00 * e0 + m01 * e1 + m02 * e2
