@@ -189,6 +189,8 @@ class SimRuntime:
         self.hand_placed = [False] * H
         # each hand's targets moved to the end of the step, out of contact (target_lead.py)
         self.leads = [TargetLead(params["target_feed_forward"]) for _ in range(H)]
+        for lead in self.leads:
+            lead.accelerate = bool(params["target_acceleration"])
         self.rejected_steps = 0
         self.steps = 0
         self.last_t = 0.0
@@ -362,6 +364,13 @@ class SimRuntime:
             self.control.set_object_targets(self.model, self.object_targets, kx=self.object_kx,
                                             ktheta=self.object_ktheta)
 
+    def _carry_hand(self, h, accel):
+        """Hand h's every mass loaded with m accel [m/s^2] (3,): the palm target's acceleration
+        (target_lead.TargetLead.acceleration; nil in contact)."""
+        nodes, bones = self.model.hands.nodes(h), self.model.hands.bones(h)
+        np.multiply(self.model.node_mass[nodes, None], accel, out=self.control.node_force[nodes])
+        np.multiply(self.model.body_mass[bones, None], accel, out=self.control.body_force[bones])
+
     def step(self, dt, t, on_bones=None):
         """Advance by dt from time t; returns StepOutput, or None while no bone target arrived.
         on_bones(t_state, [(side, bone_poses (B, 7))] of the hands that entered): called as soon
@@ -374,12 +383,14 @@ class SimRuntime:
         t0 = clock()
         self.last_t = t
         self._update_object_targets(t, dt)
+        layout = self.model.hands
         for h, lead in enumerate(self.leads):
             # into the step's inputs once per step, not per message (250 Hz per hand): the latest
             # targets, led to the end of the step (lead off: as they came)
             if self.hand_targets[h] is not None:
                 self.control.set_hand_targets(self.model, h, lead.targets_at(t + dt) if lead.enabled
                                               else self.hand_targets[h])
+                self._carry_hand(h, lead.acceleration(t + dt, self.control.target_x[layout.bones(h).start]))
         t1 = clock()
         stats = self.solver.step(self.state, self.control, dt)
         t2 = clock()

@@ -10,7 +10,8 @@ fixed during the step (energies/rigid_coupling.py):
   target_kx (B,) [N/m]        Eq. 14 stiffnesses per body (0 releases a body)
   target_ktheta (B,) [N m/rad]
   node_force (N,3) [N]        external dead loads on the tissue nodes (U = -f . x) ...
-  body_force (B,3) [N]        ... and on the bodies' centres of mass; zero by default
+  body_force (B,3) [N]        ... and on the bodies' centres of mass; zero by default (SimRuntime
+                              loads a hand's masses with its palm target's acceleration, target_lead.py)
 
 The setters take poses as they come from the runtime boundary, which validates them once
 (finite, shapes, unit quaternions, normalised: runtime.SimRuntime.set_bone_targets for the bones,
