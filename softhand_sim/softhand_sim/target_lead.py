@@ -28,7 +28,7 @@ contact is not led either (gated on contact alone, that step pressed the table ~
 stays off for CONTACT_HOLD after the hand was last that near and comes back over RAMP.
 
 The lead puts each target where the tracked bone is at the end of the step, but the palm's spring
-only follows it by stretching: the whole hand (bones and tissue, ~0.3 kg) hangs on the palm's
+only follows it by stretching: the whole hand (bones and tissue, 0.37 kg) hangs on the palm's
 500 N/m (Eq. 14), 6 Hz, so a palm target that speeds up or turns back is trailed by what the spring
 must stretch to carry that mass. `acceleration` gives the palm target's acceleration, which the
 runtime applies to every mass of the hand as a dead load m a (an accelerating frame's inertial
@@ -37,7 +37,7 @@ of this step and the last two, the discrete acceleration with which implicit Eul
 exactly (m (x+ - 2x + x-) / h^2 = k (r+ - x+) + m (r+ - 2r + r-) / h^2 leaves the error homogeneous).
 It is scaled by the lead's contact gate (in contact the paper's springs act alone), capped at
 MAX_ACCEL, and nil across a gap. Offline on leap_grab (a real recording) the simulated palm's lag
-fell from 27.5 to 18.6 ms, its position error p95 from 10.8 to 6.6 mm; turning the whole hand with
+fell from 27.5 to 18.6 ms, its position error p95 from 10.8 to 6.5 mm; turning the whole hand with
 the target's angular acceleration as well changed neither the phalanxes' lag nor the palm's (14.6,
 19.6 ms), so only the linear part is applied.
 """
