@@ -57,11 +57,12 @@ demo: venv
 	$(BIN)/softhand demo $(ARGS)
 
 # Two passes: the tests that start no ROS process (physics, hand model, config, ...) on both cores
-# with pytest-xdist, then the node-level tests one at a time (their rates and timing assume the
+# with pytest-xdist (worksteal: an idle worker takes tests queued on the busy one, so a long test
+# near the end does not leave a core idle), then the node-level tests one at a time (their rates and timing assume the
 # machine is theirs). Both passes run; make fails if either does. With ARGS: one plain pytest run of those.
 test: venv
 ifeq ($(strip $(ARGS)),)
-	@$(BIN)/python -m pytest -m "not ros" -n 2; a=$$?; \
+	@$(BIN)/python -m pytest -m "not ros" -n 2 --dist worksteal; a=$$?; \
 	  $(BIN)/python -m pytest -m ros; b=$$?; \
 	  echo "make test: tests without ROS processes exit $$a, node-level tests exit $$b"; \
 	  [ $$a -eq 0 ] && [ $$b -eq 0 ]
