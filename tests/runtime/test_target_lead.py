@@ -1,5 +1,8 @@
 """softhand_sim.target_lead: bone targets moved to the end of the step with their velocity, out of
-contact (sim_node parameter target_feed_forward), and its effect on a real recording's lag."""
+contact (sim_node parameter target_feed_forward), the palm target's acceleration carried by the
+hand's masses (target_acceleration), and their effect on a real recording's lag."""
+import functools
+
 import numpy as np
 import pytest
 
@@ -264,27 +267,31 @@ def test_warm_up_compiles_every_kernel_the_lead_calls():
     assert compiled == "{}", f"compiled during the lead: {compiled}"
 
 
-@pytest.mark.slow
-def test_feed_forward_halves_the_simulated_lag_on_a_real_recording():
-    """leap_grab (a real Leap recording) through the offline pipeline: the simulated phalanxes
-    trail the tracked ones by ~23 ms without the lead and by under 16 ms with it (14.6), the palm
-    by ~32 ms and under 21 ms with the lead and the palm target's acceleration (18.6; 27.5 with
-    the lead alone: target_acceleration below); the phalanx error's median drops too."""
+@functools.lru_cache(maxsize=None)
+def _leap_grab_lag(**sim_overrides):
+    """layer_lag of the simulated hand against the tracked one on leap_grab (a real Leap
+    recording) through the offline pipeline with these sim_node parameters (each run once)."""
     from softhand_sim.commands.lag import _sorted, layer_lag, tracked_bones
     from softhand_sim.commands.offline import read_frames, run_pipeline
 
     times, joints = read_frames("leap_grab", None, side="right")
-    ref = tracked_bones(joints, times, "right")
-    result = {}
-    for on in (False, True):
-        outs = []
-        run_pipeline(bag="leap_grab", sim_overrides={"target_feed_forward": on},
-                     progress=lambda o: outs.append((o.t, o.bone_poses.copy())))
-        t = np.array([o[0] for o in outs])
-        keep = t <= times[-1] + 0.2
-        result[on] = layer_lag(ref, _sorted(t[keep], np.array([o[1] for o in outs])[keep]))
-        print(on, {k: result[on][k] for k in ("lag_phalanx_ms", "lag_palm_ms")}, result[on]["phalanx_deg"])
-    off, on = result[False], result[True]
+    outs = []
+    run_pipeline(bag="leap_grab", sim_overrides=sim_overrides, progress=lambda o: outs.append((o.t, o.bone_poses.copy())))
+    t = np.array([o[0] for o in outs])
+    keep = t <= times[-1] + 0.2
+    result = layer_lag(tracked_bones(joints, times, "right"), _sorted(t[keep], np.array([o[1] for o in outs])[keep]))
+    print(sim_overrides, {k: result[k] for k in ("lag_phalanx_ms", "lag_palm_ms")}, result["phalanx_deg"],
+          result["palm_mm"])
+    return result
+
+
+@pytest.mark.slow
+def test_feed_forward_halves_the_simulated_lag_on_a_real_recording():
+    """leap_grab through the offline pipeline: the simulated phalanxes trail the tracked ones by
+    ~23 ms without the lead and by under 16 ms with it (14.6), the palm by ~32 ms and under 21 ms
+    with the lead and the palm target's acceleration (18.6; 27.5 with the lead alone:
+    target_acceleration below); the phalanx error's median drops too."""
+    off, on = _leap_grab_lag(target_feed_forward=False), _leap_grab_lag()
     assert off["lag_phalanx_ms"] > 20.0 and on["lag_phalanx_ms"] < 16.0
     assert off["lag_palm_ms"] > 31.0 and on["lag_palm_ms"] < 21.0
     assert on["phalanx_deg"]["median"] < off["phalanx_deg"]["median"]
@@ -296,21 +303,7 @@ def test_the_palm_target_acceleration_cuts_the_palm_lag_on_a_real_recording():
     acceleration on the hand's masses (target_acceleration): the simulated palm's lag 27.5 -> 18.6
     ms, its position error p95 10.8 -> 6.5 mm; the phalanxes' lag and error stay (the load is the
     same on every mass: it moves the hand, it does not bend it)."""
-    from softhand_sim.commands.lag import _sorted, layer_lag, tracked_bones
-    from softhand_sim.commands.offline import read_frames, run_pipeline
-
-    times, joints = read_frames("leap_grab", None, side="right")
-    ref = tracked_bones(joints, times, "right")
-    result = {}
-    for on in (False, True):
-        outs = []
-        run_pipeline(bag="leap_grab", sim_overrides={"target_acceleration": on},
-                     progress=lambda o: outs.append((o.t, o.bone_poses.copy())))
-        t = np.array([o[0] for o in outs])
-        keep = t <= times[-1] + 0.2
-        result[on] = layer_lag(ref, _sorted(t[keep], np.array([o[1] for o in outs])[keep]))
-        print(on, {k: result[on][k] for k in ("lag_phalanx_ms", "lag_palm_ms")}, result[on]["palm_mm"])
-    off, on = result[False], result[True]
+    off, on = _leap_grab_lag(target_acceleration=False), _leap_grab_lag()
     assert off["lag_palm_ms"] > 25.0 and on["lag_palm_ms"] < 21.0
     assert on["palm_mm"]["p95"] < 0.75 * off["palm_mm"]["p95"]
     assert on["lag_phalanx_ms"] == pytest.approx(off["lag_phalanx_ms"], abs=0.5)
