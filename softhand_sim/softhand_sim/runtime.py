@@ -188,9 +188,7 @@ class SimRuntime:
         self.hand_stamps = [None] * H
         self.hand_placed = [False] * H
         # each hand's targets moved to the end of the step, out of contact (target_lead.py)
-        self.leads = [TargetLead(params["target_feed_forward"]) for _ in range(H)]
-        for lead in self.leads:
-            lead.accelerate = bool(params["target_acceleration"])
+        self.leads = [TargetLead(params["target_feed_forward"], params["target_acceleration"]) for _ in range(H)]
         self.rejected_steps = 0
         self.steps = 0
         self.last_t = 0.0
@@ -390,7 +388,8 @@ class SimRuntime:
             if self.hand_targets[h] is not None:
                 self.control.set_hand_targets(self.model, h, lead.targets_at(t + dt) if lead.enabled
                                               else self.hand_targets[h])
-                self._carry_hand(h, lead.acceleration(t + dt, self.control.target_x[layout.bones(h).start]))
+                if lead.accelerate:  # off: the loads stay the zeros they start as
+                    self._carry_hand(h, lead.acceleration(t + dt, self.control.target_x[layout.bones(h).start]))
         t1 = clock()
         stats = self.solver.step(self.state, self.control, dt)
         t2 = clock()

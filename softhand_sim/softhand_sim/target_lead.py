@@ -115,8 +115,9 @@ def warm_up():
 class TargetLead:
     """One hand's targets, their velocity and the contact gate (module docstring)."""
 
-    def __init__(self, enabled: bool = True):
+    def __init__(self, enabled: bool = True, accelerate: bool = True):
         self.enabled = bool(enabled)
+        self.accelerate = bool(accelerate)  # acceleration() gives the palm target's acceleration (else nil)
         self.poses = None
         self.stamp = None
         self.vel = None
@@ -126,7 +127,6 @@ class TargetLead:
         self.last_contact_t = -np.inf
         self._last_t = None
         self.lead = 0.0  # [s] the lead of the last targets_at (for diagnostics)
-        self.accelerate = True  # acceleration() gives the palm target's acceleration (else nil)
         self._palm = deque(maxlen=3)  # (t_end, palm centre-of-mass target) of the last steps
 
     def on_target(self, poses, stamp) -> None:

@@ -148,7 +148,7 @@ def test_acceleration_is_the_second_difference_of_the_palm_targets():
     lead.on_target(_motion(2.0)[0], 2.0)                    # a gap: no velocity, no acceleration
     np.testing.assert_array_equal(lead.acceleration(2.02, palm(2.02)), 0.0)
     off = _moving_lead()
-    off.accelerate = False
+    off.accelerate = False  # as TargetLead(accelerate=False)
     for t in ends:
         off.targets_at(t)
         np.testing.assert_array_equal(off.acceleration(t, palm(t)), 0.0)
