@@ -96,11 +96,22 @@ def _squared_norms(vel):
 def extrapolate(poses, vel, tau):
     """Poses (n, 7) moved forward by tau [s] with vel (n, 6) (origins straight, orientations by
     the world angular velocity)."""
-    out = np.empty_like(poses)
-    out[:, :3] = poses[:, :3] + tau * vel[:, :3]
-    for b in range(len(poses)):
-        out[b, 3:] = integrate_rotation(poses[b, 3:].copy(), vel[b, 3:].copy(), tau)
+    out = np.empty((len(poses), 7))
+    _extrapolate(np.ascontiguousarray(poses, dtype=np.float64), np.ascontiguousarray(vel, dtype=np.float64),
+                 float(tau), out)
     return out
+
+
+@njit(cache=True)
+def _extrapolate(poses, vel, tau, out):
+    """extrapolate compiled: it runs every step for every bone (a Python loop of per-bone kernel
+    calls took ~0.2 ms of the node's tick)."""
+    for b in range(poses.shape[0]):
+        for i in range(3):
+            out[b, i] = poses[b, i] + tau * vel[b, i]
+        q = integrate_rotation(poses[b, 3:].copy(), vel[b, 3:].copy(), tau)
+        for i in range(4):
+            out[b, 3 + i] = q[i]
 
 
 def warm_up():
