@@ -120,3 +120,20 @@ def test_self_contact_model_follows_the_mesh_within_one_bench():
     assert fine["cg_hit_cap"] == 0, fine
     scenario = bench.SCENARIOS["free_self"]
     assert len({id(asset) for asset, _ in scenario._smodels.values()}) == len(scenario._smodels) >= 2
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["--hands", "1,2", "--scenario", "free_self"], "--scenario free_self with --hands 2: the 2-hand scenarios are free, grasp, press"),
+    (["--hands", "2", "--scenario", "fist"], "--scenario fist with --hands 2"),
+    (["--hands", "3"], "--hands 3: expected 1 or 2"),
+    (["--hands", "two"], "--hands 'two': expected 1, 2 or 1,2"),
+])
+def test_bench_refuses_a_case_it_has_not_before_running_any(argv, message, capsys):
+    """A scenario without a two-hand version, or a hand count other than 1 and 2: exit 2 with the
+    bad value named, before any case runs (`--hands 1,2 --scenario free_self` ran the one-hand
+    case for a minute, then died of a KeyError)."""
+    with pytest.raises(SystemExit) as exc:
+        bench.main(["--mesh", "coarse", "--steps", "1", *argv])
+    assert exc.value.code == 2
+    captured = capsys.readouterr()
+    assert message in captured.err and captured.out == ""

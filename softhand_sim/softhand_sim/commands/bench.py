@@ -291,15 +291,24 @@ def stage_profile(step_ms, stage_ms):
             for name, v in cols.items()}
 
 
+def check_case(scenario, hands):
+    """ValueError naming the bad value unless `scenario` exists for `hands` hands."""
+    if hands not in (1, 2):
+        raise ValueError(f"--hands {hands}: expected 1 or 2")
+    scenes = SCENARIOS if hands == 1 else SCENARIOS_TWO_HANDS
+    if scenario not in scenes:
+        raise ValueError(f"--scenario {scenario} with --hands {hands}: the {hands}-hand scenarios are "
+                         f"{', '.join(sorted(scenes))}")
+
+
 def run(scenario, mesh, steps, preconditioner, hands=1, profile=False):
     from softhand_sim.physics.model import build_model
     from softhand_sim.physics.solver import STAGE_FIELDS, Solver
     asset, source = _asset(mesh)
+    check_case(scenario, hands)
     scenes = SCENARIOS if hands == 1 else SCENARIOS_TWO_HANDS
     if hands == 2:
         asset = [asset, _asset(mesh, "left")[0]]
-    elif hands != 1:
-        raise ValueError(f"--hands {hands}: expected 1 or 2")
     objects = getattr(scenes[scenario], "objects", None)  # scenarios may add rigid objects
     params = getattr(scenes[scenario], "params", dict)()   # ... and their own solver parameters
     model = build_model(asset, {**params, "preconditioner": preconditioner},
@@ -389,7 +398,9 @@ def main(argv=None):
     ap.add_argument("--all-preconditioners", action="store_true",
                     help="run every preconditioner (the default factor, block_jacobi, the paper's jacobi)")
     ap.add_argument("--steps", type=int, default=300)
-    ap.add_argument("--hands", default="1", help="hands in the model: 1, 2 or 1,2 (both counts)")
+    ap.add_argument("--hands", default="1",
+                    help="hands in the model: 1, 2 or 1,2 (both counts); two hands run "
+                         f"{', '.join(sorted(SCENARIOS_TWO_HANDS))}")
     ap.add_argument("--profile", action="store_true",
                     help="split the step into its stages (median, p99, share of the step per stage)")
     ap.add_argument("--json", action="store_true")
@@ -401,9 +412,13 @@ def main(argv=None):
         counts = [int(h) for h in a.hands.split(",")]
     except ValueError:
         ap.error(f"--hands {a.hands!r}: expected 1, 2 or 1,2")
+    scenarios = a.scenario or ["free", "press"]
     try:
+        for h in counts:  # every case checked before the first one runs (a minute each)
+            for s in scenarios:
+                check_case(s, h)
         rows = [run(s, m, a.steps, p, h, a.profile) for h in counts for m in (a.mesh or ["coarse", "fine"])
-                for s in (a.scenario or ["free", "press"]) for p in precs]
+                for s in scenarios for p in precs]
     except ValueError as e:
         ap.error(str(e))
     print(json.dumps(rows, indent=1) if a.json else format_table(rows))
