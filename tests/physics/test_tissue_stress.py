@@ -200,6 +200,12 @@ def test_twist_matrix_needs_no_eigen_solve_near_rest():
             if active:
                 assert np.abs(Q - ref).max() <= 1e-12 * 4.0 * mu
     assert mixed > 500  # the mixed cases, where the odd mode's eigenvector is used
+    for s in (0.9, 1.0, 1.2, 2.0):  # S = s I to round-off: every mode the same, Q = max(q, 0) I
+        S = s * np.eye(3) + 1e-15 * np.diag([1.0, -1.0, 0.5])
+        ref, active = _twist_reference(S, lam, mu)
+        got = tissue._twist_mixed(S[0, 0], S[1, 1], S[2, 2], 0.0, 0.0, 0.0, np.trace(S), lam, mu, Q)
+        assert got == active
+        assert np.abs((Q if got else 0.0) - ref).max() <= 1e-12 * 4.0 * mu
 
 
 # ---------------------------------------------------------------- the bar

@@ -354,8 +354,9 @@ def _twist_mixed(s00, s11, s22, s01, s02, s12, tr, lam, mu, Q):
         q = _twist_q(m, tr, lam, mu)
         if q <= 0.0:
             return 0
-        _twist_one(0.0, 0.0, 0.0, 0.0, Q)
-        Q[0, 0], Q[1, 1], Q[2, 2] = q, q, q
+        for r in range(3):
+            for c in range(3):
+                Q[r, c] = q if r == c else 0.0
         return 3
     pp = np.sqrt(p2 / 6.0)
     b00, b11, b22 = (s00 - qm) / pp, (s11 - qm) / pp, (s22 - qm) / pp
