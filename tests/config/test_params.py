@@ -138,11 +138,11 @@ def test_every_parameter_is_read(node):
 
 def test_low_latency_profile_sets_only_the_sim_rate():
     """config/low_latency.yaml (README, "Following without lag") is a valid params file that moves
-    sim_node to 120 Hz and leaves every other parameter of every node at its default."""
+    sim_node to 150 Hz and leaves every other parameter of every node at its default."""
     profile = REPO_ROOT / "config" / "low_latency.yaml"
     assert set(read_params_file(profile)) == {"sim_node"}
     for node in SCHEMA:
         values, base = load_params(node, profile), defaults(node)
         changed = {k for k in base if values[k] != base[k]}
         assert changed == ({"sim_rate"} if node == "sim_node" else set()), node
-    assert load_params("sim_node", profile)["sim_rate"] == 120.0
+    assert load_params("sim_node", profile)["sim_rate"] == 150.0
