@@ -292,21 +292,22 @@ def stage_profile(step_ms, stage_ms):
 
 
 def check_case(scenario, hands):
-    """ValueError naming the bad value unless `scenario` exists for `hands` hands."""
+    """The scenario table for `hands` hands (SCENARIOS or SCENARIOS_TWO_HANDS); ValueError naming
+    the bad value unless it has `scenario`."""
     if hands not in (1, 2):
         raise ValueError(f"--hands {hands}: expected 1 or 2")
     scenes = SCENARIOS if hands == 1 else SCENARIOS_TWO_HANDS
     if scenario not in scenes:
         raise ValueError(f"--scenario {scenario} with --hands {hands}: the {hands}-hand scenarios are "
                          f"{', '.join(sorted(scenes))}")
+    return scenes
 
 
 def run(scenario, mesh, steps, preconditioner, hands=1, profile=False):
     from softhand_sim.physics.model import build_model
     from softhand_sim.physics.solver import STAGE_FIELDS, Solver
+    scenes = check_case(scenario, hands)
     asset, source = _asset(mesh)
-    check_case(scenario, hands)
-    scenes = SCENARIOS if hands == 1 else SCENARIOS_TWO_HANDS
     if hands == 2:
         asset = [asset, _asset(mesh, "left")[0]]
     objects = getattr(scenes[scenario], "objects", None)  # scenarios may add rigid objects

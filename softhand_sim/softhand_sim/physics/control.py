@@ -21,9 +21,8 @@ centres of mass.
 from dataclasses import dataclass
 
 import numpy as np
-from numba import njit
 
-from softhand_sim.physics.rotations import quat_to_matrix
+from softhand_sim.physics.state import com_from_poses
 
 
 @dataclass
@@ -50,7 +49,7 @@ class Control:
                        self.target_ktheta.copy(), self.node_force.copy(), self.body_force.copy())
 
     def _set_targets(self, model, first, poses):
-        _com_targets(np.ascontiguousarray(poses), model.body_com_local, first, self.target_x, self.target_q)
+        com_from_poses(np.ascontiguousarray(poses), model.body_com_local, first, self.target_x, self.target_q)
 
     def set_bone_targets(self, model, poses):
         """Intermediate-bone targets (bone_count, 7) bone-frame poses [m, unit quaternion] (Sect. 3.6);
@@ -73,17 +72,3 @@ class Control:
         if ktheta is not None:
             self.target_ktheta[nb:] = ktheta
 
-
-@njit(cache=True)
-def _com_targets(poses, com_local, first, target_x, target_q):
-    """Bone-frame poses (n, 7) -> the centre-of-mass targets of bodies first.. (target_x, target_q in
-    place): compiled, as it runs every step for every bone (a Python loop of per-bone kernel calls
-    took ~0.2 ms of the node's ~5 ms tick)."""
-    for i in range(poses.shape[0]):
-        b = first + i
-        for k in range(4):
-            target_q[b, k] = poses[i, 3 + k]
-        R = quat_to_matrix(target_q[b])
-        for r in range(3):
-            target_x[b, r] = poses[i, r] + R[r, 0] * com_local[b, 0] + R[r, 1] * com_local[b, 1] \
-                + R[r, 2] * com_local[b, 2]

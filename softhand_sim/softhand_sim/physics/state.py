@@ -11,6 +11,7 @@
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 
 from softhand_sim.physics.rotations import quat_to_matrix
 
@@ -51,14 +52,12 @@ class State:
     @classmethod
     def at_rest(cls, model):
         pose = model.body_rest_pose.copy()
-        B = len(pose)
-        body_x = np.zeros((B, 3))
-        for b in range(B):
-            body_x[b] = pose[b, :3] + quat_to_matrix(pose[b, 3:]) @ model.body_com_local[b]
+        body_x, body_q = np.zeros((len(pose), 3)), np.zeros((len(pose), 4))
+        com_from_poses(pose, model.body_com_local, 0, body_x, body_q)
         tet_q = np.zeros((len(model.tets), 4))
         tet_q[:, 3] = 1.0
         return cls(node_x=model.node_rest.copy(), v=np.zeros(model.dof_count), body_x=body_x,
-                   body_q=np.ascontiguousarray(pose[:, 3:]), body_pose=pose, tet_q=tet_q,
+                   body_q=body_q, body_pose=pose, tet_q=tet_q,
                    bone_count=model.bone_count)
 
     def copy(self):
@@ -67,8 +66,23 @@ class State:
 
     def set_body_pose(self, model, b, pose):
         """Place body b at bone-frame pose (7,) (teleport; velocity unchanged)."""
-        pose = np.asarray(pose, float)
-        self.body_q[b] = pose[3:] / np.linalg.norm(pose[3:])
-        self.body_x[b] = pose[:3] + quat_to_matrix(self.body_q[b]) @ model.body_com_local[b]
-        self.body_pose[b, :3] = pose[:3]
-        self.body_pose[b, 3:] = self.body_q[b]
+        pose = np.array(pose, dtype=np.float64).reshape(1, 7)
+        pose[0, 3:] /= np.linalg.norm(pose[0, 3:])
+        com_from_poses(pose, model.body_com_local, b, self.body_x, self.body_q)
+        self.body_pose[b] = pose[0]
+
+
+@njit(cache=True)
+def com_from_poses(poses, com_local, first, com_out, q_out):
+    """Bone-frame poses (n, 7) of bodies first..first+n-1 -> their centres of mass com_out and
+    orientations q_out (in place; com = origin + R(q) com_local): the one conversion of the state's
+    bodies (at rest, teleports) and of Control's targets, compiled as the targets need it every
+    step for every bone (a Python loop of per-bone kernel calls took ~0.2 ms of the node's tick)."""
+    for i in range(poses.shape[0]):
+        b = first + i
+        for k in range(4):
+            q_out[b, k] = poses[i, 3 + k]
+        R = quat_to_matrix(q_out[b])
+        for r in range(3):
+            com_out[b, r] = poses[i, r] + R[r, 0] * com_local[b, 0] + R[r, 1] * com_local[b, 1] \
+                + R[r, 2] * com_local[b, 2]
