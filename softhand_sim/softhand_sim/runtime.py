@@ -38,7 +38,7 @@ from softhand_sim.handmodel import load_or_build_hand
 from softhand_sim.handmodel.measures import as_measures
 from softhand_sim.handmodel.rigid_skin import skin_segments
 from softhand_sim.hand_sizer import measures_diagnostics
-from softhand_sim.params import ParamError
+from softhand_sim.params import ParamError, sim_rate_hz
 from softhand_sim.physics.hands import HAND_CODE, SIDES, union_asset
 from softhand_sim.physics.model import build_model
 from softhand_sim.physics.rotations import quat_mul, quat_conj, quat_to_matrix
@@ -143,9 +143,10 @@ class SimRuntime:
         None: each hand cached, morphed or built (handmodel.cache) for its side at params["mesh"] and at
         `measures` if given, else at the `hand_measures` parameter's. measures_source: what the
         diagnostics name as the measures' source (default: the parameter's kind, hand_measures_source)."""
-        self.params = params
-        self.scene = scene if scene is not None else load_scene(params["scene_file"] or None)
         self.hands = hand_sides(params)
+        # a copy: `sim_rate` 0 becomes the rate for this many hands (sim_rate_hz), the rest as given
+        self.params = params = {**params, "sim_rate": sim_rate_hz(params, len(self.hands))}
+        self.scene = scene if scene is not None else load_scene(params["scene_file"] or None)
         value = params["hand_measures"]
         if asset is None:
             m = measures if measures is not None else hand_measures(value)
@@ -223,7 +224,7 @@ class SimRuntime:
         return (f"{'+'.join(self.hands)} hand{'s' if len(self.hands) > 1 else ''}, {len(m.tets)} tets, "
                 f"{m.node_count} nodes, {m.dof_count} dofs, {tris} skin triangles, objects "
                 f"{self.object_names}, contact points {self.contacts.model.point_count}, "
-                f"preconditioner {self.params['preconditioner']}")
+                f"preconditioner {self.params['preconditioner']}, {self.params['sim_rate']:g} Hz")
 
     def skin_rest_mesh(self, hand=None):
         """(vertices (V,3), triangles) of a hand's skin at its rest pose (default: the first hand)."""

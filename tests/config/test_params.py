@@ -61,7 +61,7 @@ def test_descriptions_carry_meaning_unit_and_range():
     text, (low, high) = d["poisson_ratio"]
     assert "Poisson" in text and "[-]" in text and (low, high) == (0.0, 0.49)
     text, (low, high) = d["sim_rate"]
-    assert "[Hz]" in text and (low, high) == (10, 2000)
+    assert "[Hz]" in text and "by hand count" in text and (low, high) == (0, 2000)
     assert "jacobi" in d["preconditioner"][0] and d["preconditioner"][1] == (None, None)
 
 
@@ -136,13 +136,18 @@ def test_every_parameter_is_read(node):
     assert not unread, f"{node}: nobody reads {unread}"
 
 
-def test_low_latency_profile_sets_only_the_sim_rate():
-    """config/low_latency.yaml (README, "Following without lag") is a valid params file that moves
-    sim_node to 150 Hz and leaves every other parameter of every node at its default."""
-    profile = REPO_ROOT / "config" / "low_latency.yaml"
-    assert set(read_params_file(profile)) == {"sim_node"}
-    for node in SCHEMA:
-        values, base = load_params(node, profile), defaults(node)
-        changed = {k for k in base if values[k] != base[k]}
-        assert changed == ({"sim_rate"} if node == "sim_node" else set()), node
-    assert load_params("sim_node", profile)["sim_rate"] == 150.0
+def test_sim_rate_by_hand_count():
+    """sim_rate 0 (the default) is 150 Hz for one hand and 60 Hz for two (README, "Following
+    without lag"); a rate given is kept for any hand count; 0 < rate < 10 Hz is refused by name,
+    and the runtime's params carry the rate it steps at."""
+    from softhand_sim.params import sim_rate_hz
+    from softhand_sim.runtime import SimRuntime
+    p = defaults("sim_node")
+    assert p["sim_rate"] == 0.0
+    assert sim_rate_hz(p, 1) == 150.0 and sim_rate_hz(p, 2) == 60.0
+    assert sim_rate_hz({**p, "sim_rate": 90.0}, 1) == 90.0 == sim_rate_hz({**p, "sim_rate": 90.0}, 2)
+    with pytest.raises(ParamError, match="sim_rate.*5.0"):
+        sim_rate_hz({**p, "sim_rate": 5.0}, 1)
+    with pytest.raises(ParamError, match="sim_rate"):
+        load_params("sim_node", overrides={"sim_rate": -1.0})
+    assert SimRuntime(p).params["sim_rate"] == 150.0 and p["sim_rate"] == 0.0  # the caller's dict untouched

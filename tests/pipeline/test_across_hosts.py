@@ -565,7 +565,7 @@ def test_latency_and_bandwidth_table(lan_runs):
                  f"more (baseline {v['baseline'] / 1e3:.1f} kB/s)")
     for topic, (rate, size, bps) in sorted(v["topics"].items()):
         lines.append(f"  {topic:28s} {rate:7.1f} Hz {size / 1e3:9.1f} kB {bps / 1e6:7.2f} MB/s "
-                     f"(at sim_rate 60 Hz / marker 10 Hz: {size * (60 if 'vertices' in topic else 10) / 1e6:.2f} MB/s)")
+                     f"(at one hand's 150 Hz / marker 10 Hz: {size * (150 if 'vertices' in topic else 10) / 1e6:.2f} MB/s)")
     print("\n".join(lines))
     assert lat["delay"][0] > lat["clean"][0] + 25.0, lat   # 2 x (20 - 5) ms more on the round trip
     assert all(np.isfinite(v).all() for v in lat.values()), lat

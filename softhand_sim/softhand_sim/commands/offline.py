@@ -13,7 +13,7 @@ config/softhand.yaml, `softhand_sim.params.load_params`):
   become the sim's bone targets at once (sim_node keeps the latest). With hands=[right, left]
   (a two-hand bag) one loop per hand, as one tracking node each, the frames of both on the bag's
   one timeline;
-* sim_node: `SimRuntime.step(dt, t)` at `sim_rate` (60 Hz). Its outputs (state at t + dt) are
+* sim_node: `SimRuntime.step(dt, t)` at `sim_rate` (0: 150 Hz for one hand, 60 for two). Its outputs (state at t + dt) are
   delivered `sim_latency` [s] after the step starts (default: one sim period, the worst case of a
   node whose step takes its whole period): /hand/bones -> loop.on_sim_bones, /hand/object_states
   -> world.set_copy stamped with the state time t + dt (as world_node takes the header stamp);
@@ -169,7 +169,7 @@ def run_pipeline(bag=None, synth=None, until=None, sim_latency=None, sim_overrid
         loops[side] = TrackingLoop(loop_config_from(tp), adapter, tracker_timeout=tp["tracker_timeout"],
                                    sim_timeout=tp["sim_timeout"])
     loop = loops[hands[0]]
-    sim_dt = 1.0 / sp["sim_rate"]
+    sim_dt = 1.0 / runtime.params["sim_rate"]  # sim_rate 0: by hand count
     latency = sim_dt if sim_latency is None else float(sim_latency)
     end = max(times[-1] for times, _ in frames.values()) + 2.0 if until is None else float(until)
     ball = runtime.object_names.index(track_object)                   # solver body index
