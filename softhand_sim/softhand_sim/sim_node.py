@@ -35,6 +35,7 @@ from trajectory_msgs.msg import MultiDOFJointTrajectory
 from visualization_msgs.msg import Marker, MarkerArray
 
 from softhand_sim.ros import msgs as rm
+from softhand_sim.ros.cdr_messages import contacts_cloud_cdr, object_states_cdr
 from softhand_sim.ros.markers import CONTACT_MARKERS_TOPIC, ContactMarkerSerializer
 from softhand_sim.params import ParamError
 from softhand_sim.scene import SceneError
@@ -266,12 +267,15 @@ class SimNode(Node):
             if marker_tick:
                 verts, tris = self.runtime.display_mesh(out, hand=hand.side)
                 rest.append((hand.marker, hand.marker_serializer.serialize(verts, tris, stamp)))
+        # the per-step messages as CDR bytes built with numpy (cdr_messages: ~0.4 ms a tick less
+        # than building and serializing message objects)
+        stamp_ns = rm.stamp_to_ns(stamp)
         if len(out.object_names):
-            rest.append((self.pub_objects, rm.object_states_from_numpy(
-                out.object_names, out.object_poses, out.object_twists, out.object_accels, stamp)))
+            rest.append((self.pub_objects, object_states_cdr(
+                out.object_names, out.object_poses, out.object_twists, out.object_accels, stamp_ns)))
         c = out.contacts
-        rest.append((self.pub_contacts, rm.contacts_cloud_from_numpy(
-            c["points"], c["normals"], c["forces"], c["objects"], c["slip"], stamp, hand=c["hand"], bone=c["bone"],
+        rest.append((self.pub_contacts, contacts_cloud_cdr(
+            c["points"], c["normals"], c["forces"], c["objects"], c["slip"], stamp_ns, hand=c["hand"], bone=c["bone"],
             other_hand=c["other_hand"], other_bone=c["other_bone"])))
         if marker_tick:
             rest.append((self.pub_contact_markers,

@@ -101,6 +101,39 @@ def test_object_states_round_trip_and_contract():
         rm.object_states_to_numpy(back)
 
 
+def test_contacts_and_object_states_cdr_are_what_rclpy_reads():
+    """sim_node's numpy-built CDR of /hand/contacts and /hand/object_states (cdr_messages) against
+    rclpy's serializer of the message objects: the same length, and rclpy reads ours back to the
+    message it serializes (every field, every value), for 0 to 300 contacts and 0 to 4 objects,
+    with frame ids of every length modulo 4; a bad row count is refused by name."""
+    from softhand_sim.ros import cdr_messages as cdr
+    rng = np.random.default_rng(11)
+    for n in (0, 1, 7, 290):
+        for frame in ("world", "", "abc", "ab"):
+            args = (rng.normal(size=(n, 3)), rng.normal(size=(n, 3)), rng.normal(size=(n, 3)),
+                    rng.integers(0, 4, size=n), rng.integers(0, 2, size=n))
+            extra = dict(hand=rng.integers(0, 2, size=n), bone=rng.integers(0, 16, size=n),
+                         other_hand=rng.integers(0, 2, size=n), other_bone=rng.integers(0, 16, size=n))
+            stamp = int(rng.integers(0, 2**31 - 1)) * 1_000_000_000 + int(rng.integers(0, 10**9))
+            ours = cdr.contacts_cloud_cdr(*args, stamp, frame, **extra)
+            msg = rm.contacts_cloud_from_numpy(*args, rm.stamp_from_ns(stamp), frame, **extra)
+            theirs = serialize_message(msg)
+            assert len(ours) == len(theirs), (n, frame)
+            assert deserialize_message(ours, PointCloud2) == msg, (n, frame)
+    for k in (0, 1, 4):
+        for frame in ("world", "", "abc"):
+            names = ["ball", "big_box", "mug", "small_box"][:k]
+            poses, tw, acc = _random_poses(rng, k), rng.normal(size=(k, 6)), rng.normal(size=(k, 6))
+            ours = cdr.object_states_cdr(names, poses, tw, acc, 5_250_000_001, frame)
+            msg = rm.object_states_from_numpy(names, poses, tw, acc, rm.stamp_from_ns(5_250_000_001), frame)
+            assert len(ours) == len(serialize_message(msg)), (k, frame)
+            assert deserialize_message(ours, MultiDOFJointTrajectory) == msg, (k, frame)
+    with pytest.raises(ValueError, match="twists has 2 rows for 3 object names"):
+        cdr.object_states_cdr(["a", "b", "c"], _random_poses(rng, 3), np.zeros((2, 6)), np.zeros((3, 6)), 0)
+    with pytest.raises(ValueError, match="forces has 1 rows for 2 contact points"):
+        cdr.contacts_cloud_cdr(np.zeros((2, 3)), np.zeros((2, 3)), np.zeros((1, 3)), [0, 0], [0, 0], 0)
+
+
 def test_xyz_cloud_round_trip_float32():
     """Skin-vertex cloud: x y z float32 fields, width n, values equal to the float32 rounding of the input."""
     rng = np.random.default_rng(2)

@@ -280,7 +280,10 @@ def pointcloud_from_structured(points: np.ndarray, stamp, frame_id: str = WORLD_
     step = points.dtype.itemsize
     msg = PointCloud2(header=make_header(stamp, frame_id), height=1, width=n, fields=fields,
                       is_bigendian=False, point_step=step, row_step=step * n, is_dense=True)
-    msg.data = _bytes_to_uint8_array(np.ascontiguousarray(points).astype(points.dtype.newbyteorder("<")).tobytes())
+    # copy=False: a little-endian array keeps its zeroed padding bytes (astype's copy leaves them
+    # uninitialised, so recordings differed in bytes no field reads)
+    msg.data = _bytes_to_uint8_array(np.ascontiguousarray(points).astype(points.dtype.newbyteorder("<"),
+                                                                          copy=False).tobytes())
     return msg
 
 
@@ -329,7 +332,16 @@ def contacts_cloud_from_numpy(points, normals, forces, objects, slip, stamp,
     object index (uint32; SKIN_OBJECT for skin on skin), slip (n,) 0 stick / 1 slip (uint8), hand
     (n,) 0 right / 1 left (uint8; None: all right), bone (n,) the bone (0-15) whose skin touches,
     other_hand / other_bone (n,) the touched skin's for skin-skin contacts (None: NO_BONE).
+    (cdr_messages.contacts_cloud_cdr: the same message as CDR bytes, what sim_node publishes.)
     """
+    return pointcloud_from_structured(contact_points(points, normals, forces, objects, slip, hand, bone,
+                                                     other_hand, other_bone), stamp, frame_id)
+
+
+def contact_points(points, normals, forces, objects, slip, hand=None, bone=None, other_hand=None,
+                   other_bone=None) -> np.ndarray:
+    """The CONTACT_DTYPE rows of contacts_cloud_from_numpy's arguments (ValueError naming a
+    mismatched length)."""
     p = _check_rows("points", points, 3)
     n = p.shape[0]
     nrm = _check_rows("normals", normals, 3)
@@ -353,7 +365,7 @@ def contacts_cloud_from_numpy(points, normals, forces, objects, slip, stamp,
     pts["hand"] = hnd.astype(np.uint8)
     for name, arr in extra.items():
         pts[name] = arr.astype(np.uint8)
-    return pointcloud_from_structured(pts, stamp, frame_id)
+    return pts
 
 
 def contacts_cloud_to_numpy(msg) -> dict:
