@@ -61,7 +61,7 @@ class _Writer:
         if len(rows):
             self.raw(np.ascontiguousarray(rows, dtype="<f8").tobytes(), 8)
 
-    def bytes(self) -> bytes:
+    def cdr(self) -> bytes:
         return _CDR_LE + b"".join(self.parts)
 
 
@@ -94,7 +94,7 @@ def pointcloud_cdr(points: np.ndarray, stamp_ns: int, frame_id: str = WORLD_FRAM
     w.u4(step * n)  # data: length, then the bytes
     w.raw(np.ascontiguousarray(points).astype(points.dtype.newbyteorder("<"), copy=False).tobytes())
     w.u1(1)  # is_dense
-    return w.bytes()
+    return w.cdr()
 
 
 def contacts_cloud_cdr(points, normals, forces, objects, slip, stamp_ns: int, frame_id: str = WORLD_FRAME,
@@ -123,4 +123,4 @@ def object_states_cdr(names, poses, twists, accels, stamp_ns: int, frame_id: str
         w.f8_rows(arr)
     w.u4(0)  # time_from_start: sec
     w.u4(0)  # nanosec
-    return w.bytes()
+    return w.cdr()
