@@ -349,7 +349,7 @@ def sim_rate_hz(params, n_hands: int) -> float:
     with 0 the rate by hand count (AUTO_SIM_RATE). ParamError on a rate between 0 and 10 Hz."""
     rate = float(params["sim_rate"])
     if rate == 0.0:
-        return AUTO_SIM_RATE[min(max(int(n_hands), 1), 2)]
+        return AUTO_SIM_RATE[n_hands]
     if rate < 10.0:
         raise ParamError(f"sim_node: parameter 'sim_rate' must be 0 (by hand count) or 10-2000 [Hz], got {rate!r}")
     return rate

@@ -121,7 +121,7 @@ class WorldNode(Node):
             # CDR bytes built with numpy, as sim_node's (cdr_messages: 120 Hz of message objects cost
             # ~0.15 ms each to build and serialize)
             self.pub_states.publish(object_states_cdr(s.names, s.pose, s.twist, s.accel,
-                                                      rm.stamp_to_ns(rm.stamp_from_seconds(s.stamp))))
+                                                      rm.seconds_to_ns(s.stamp)))
             self.published += 1
 
     def on_markers(self):

@@ -18,8 +18,7 @@ import functools
 
 import numpy as np
 
-from softhand_sim.ros.msgs import (_CDR_LE, _DTYPE_FIELDS, _NS_PER_S, WORLD_FRAME, _check_rows, _pad,
-                                   contact_points)
+from softhand_sim.ros.msgs import _CDR_LE, _DTYPE_FIELDS, WORLD_FRAME, _pad, contact_points, header_cdr, object_rows
 
 
 class _Writer:
@@ -47,12 +46,7 @@ class _Writer:
         self.raw(data)
 
     def header(self, stamp_ns: int, frame_id: str):
-        sec, nsec = divmod(int(stamp_ns), _NS_PER_S)
-        if not 0 <= sec < 2**31:
-            raise ValueError(f"stamp must be in [0, 2^31) s as builtin_interfaces/Time, got {stamp_ns} ns")
-        self.u4(sec)
-        self.u4(nsec)
-        self.string(frame_id)
+        self.raw(header_cdr(stamp_ns, frame_id), 4)
 
     def f8_rows(self, rows: np.ndarray):
         """A sequence of fixed-size float64 structs (Transform, Twist): count, then the values
@@ -107,19 +101,14 @@ def contacts_cloud_cdr(points, normals, forces, objects, slip, stamp_ns: int, fr
 def object_states_cdr(names, poses, twists, accels, stamp_ns: int, frame_id: str = WORLD_FRAME) -> bytes:
     """CDR of msgs.object_states_from_numpy(...) (the same arguments; the stamp in ns):
     trajectory_msgs/MultiDOFJointTrajectory with one point, time_from_start 0."""
-    names = [str(n) for n in names]
-    rows = {label: _check_rows(label, arr, width)
-            for label, arr, width in (("poses", poses, 7), ("twists", twists, 6), ("accels", accels, 6))}
-    for label, arr in rows.items():
-        if arr.shape[0] != len(names):
-            raise ValueError(f"{label} has {arr.shape[0]} rows for {len(names)} object names")
+    names, *rows = object_rows(names, poses, twists, accels)
     w = _Writer()
     w.header(stamp_ns, frame_id)
     w.u4(len(names))
     for name in names:
         w.string(name)
     w.u4(1)  # one point
-    for arr in rows.values():  # transforms, velocities, accelerations
+    for arr in rows:  # transforms, velocities, accelerations
         w.f8_rows(arr)
     w.u4(0)  # time_from_start: sec
     w.u4(0)  # nanosec

@@ -45,9 +45,14 @@ def stamp_from_ns(ns: int) -> Time:
     return Time(sec=ns // _NS_PER_S, nanosec=ns % _NS_PER_S)
 
 
+def seconds_to_ns(t: float) -> int:
+    """Integer nanoseconds of float seconds (rounded to the nearest nanosecond)."""
+    return int(round(float(t) * _NS_PER_S))
+
+
 def stamp_from_seconds(t: float) -> Time:
     """builtin_interfaces/Time from float seconds (rounded to the nearest nanosecond)."""
-    return stamp_from_ns(int(round(float(t) * _NS_PER_S)))
+    return stamp_from_ns(seconds_to_ns(t))
 
 
 def stamp_to_ns(stamp) -> int:
@@ -125,15 +130,21 @@ def _pad(offset: int, align: int) -> int:
     return (-offset) % align
 
 
-def pose_array_cdr(poses, stamp_ns: int, frame_id: str = WORLD_FRAME) -> bytes:
-    """CDR bytes of a geometry_msgs/PoseArray of poses (n, 7) [m, quaternion x y z w] stamped
-    `stamp_ns` [ns] (the bytes serialize_message gives for pose_array_from_numpy(...))."""
-    p = _check_rows("poses", poses, 7)
+def header_cdr(stamp_ns: int, frame_id: str) -> bytes:
+    """CDR of a std_msgs/Header (stamp sec, nanosec; frame_id) at the start of a message body,
+    unpadded at its end (the bytes of every message that begins with a Header)."""
     sec, nsec = divmod(int(stamp_ns), _NS_PER_S)
     if not 0 <= sec < 2**31:
         raise ValueError(f"stamp must be in [0, 2^31) s as builtin_interfaces/Time, got {stamp_ns} ns")
     name = frame_id.encode() + b"\x00"
-    body = np.array([sec, nsec], dtype="<u4").tobytes() + len(name).to_bytes(4, "little") + name
+    return np.array([sec, nsec], dtype="<u4").tobytes() + len(name).to_bytes(4, "little") + name
+
+
+def pose_array_cdr(poses, stamp_ns: int, frame_id: str = WORLD_FRAME) -> bytes:
+    """CDR bytes of a geometry_msgs/PoseArray of poses (n, 7) [m, quaternion x y z w] stamped
+    `stamp_ns` [ns] (the bytes serialize_message gives for pose_array_from_numpy(...))."""
+    p = _check_rows("poses", poses, 7)
+    body = header_cdr(stamp_ns, frame_id)
     body += bytes(_pad(len(body), 4)) + len(p).to_bytes(4, "little")
     body += bytes(_pad(len(body), 8)) if len(p) else b""
     return _CDR_LE + body + p.astype("<f8").tobytes()
@@ -176,14 +187,7 @@ def object_states_from_numpy(names: Sequence[str], poses, twists, accels, stamp,
     velocities (twists (n, 6) [m/s, rad/s], world frame) and accelerations (accels (n, 6)
     [m/s^2, rad/s^2]) describe each object at header.stamp; time_from_start = 0.
     """
-    names = [str(n) for n in names]
-    n = len(names)
-    p = _check_rows("poses", poses, 7)
-    v = _check_rows("twists", twists, 6)
-    a = _check_rows("accels", accels, 6)
-    for label, arr in (("poses", p), ("twists", v), ("accels", a)):
-        if arr.shape[0] != n:
-            raise ValueError(f"{label} has {arr.shape[0]} rows for {n} object names")
+    names, p, v, a = object_rows(names, poses, twists, accels)
     point = MultiDOFJointTrajectoryPoint()
     transforms, velocities, accelerations = [], [], []
     for px, py, pz, qx, qy, qz, qw in p.tolist():
@@ -199,6 +203,17 @@ def object_states_from_numpy(names: Sequence[str], poses, twists, accels, stamp,
             dest.append(tw)
     point.transforms, point.velocities, point.accelerations = transforms, velocities, accelerations
     return MultiDOFJointTrajectory(header=make_header(stamp, frame_id), joint_names=names, points=[point])
+
+
+def object_rows(names, poses, twists, accels):
+    """(names as str, poses (n, 7), twists (n, 6), accels (n, 6)) of an object state message, checked
+    (ValueError naming a non-finite value or a row count that is not the names')."""
+    names = [str(n) for n in names]
+    rows = _check_rows("poses", poses, 7), _check_rows("twists", twists, 6), _check_rows("accels", accels, 6)
+    for label, arr in zip(("poses", "twists", "accels"), rows):
+        if arr.shape[0] != len(names):
+            raise ValueError(f"{label} has {arr.shape[0]} rows for {len(names)} object names")
+    return (names, *rows)
 
 
 def object_states_to_numpy(msg):
