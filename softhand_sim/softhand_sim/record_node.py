@@ -297,6 +297,9 @@ class RecordNode(Node):
     def _feed_lag(self, feed, raw: bytes) -> None:
         """A tracker frame or a layer's bones into that hand's LiveLag (by header stamp)."""
         side, layer = feed
+        stamp_ns = header_stamp_ns(raw)  # a thinned layer's sample is skipped before it is parsed
+        if stamp_ns is not None and not self.live_lag[side].wants(layer, stamp_ns * 1e-9):
+            return
         try:
             poses, stamp_ns, _frame = pose_array_from_cdr(raw)
         except ValueError:
