@@ -142,7 +142,7 @@ def test_cache_morphs_other_sizes(base, tmp_path, monkeypatch):
 @pytest.mark.slow
 def test_failed_morph_falls_back_to_a_full_build(base, tmp_path, monkeypatch, caplog):
     """A morph that fails its checks (here: an embedding limit no hand meets) is built in full,
-    and the log and build_info say why (coarse full build: 40-160 s)."""
+    and the log and build_info say why (a coarse full build: 7-15 s)."""
     src = cache.cache_path(None, "right", "coarse", method="build")
     monkeypatch.setenv("SOFTHAND_CACHE", str(tmp_path))
     os.symlink(src, cache.cache_path(None, "right", "coarse", method="build"))

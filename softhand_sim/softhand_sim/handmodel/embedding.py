@@ -26,6 +26,27 @@ def barycentric(nodes, tets, tet_index, points):
 
 
 @njit(cache=True)
+def _best_of_all_tets(inv, p0, points):
+    """(tet (n,), its smallest weight (n,)) of the tet whose smallest barycentric weight of each
+    point is largest, over every tet (inv: each tet's inverse edge matrix, p0 its first node); the
+    first such tet on a tie, as np.argmax."""
+    n, T = points.shape[0], inv.shape[0]
+    best = np.zeros(n, dtype=np.int64)
+    best_w = np.full(n, -np.inf)
+    for i in range(n):
+        x, y, z = points[i, 0], points[i, 1], points[i, 2]
+        for t in range(T):
+            dx, dy, dz = x - p0[t, 0], y - p0[t, 1], z - p0[t, 2]
+            w1 = inv[t, 0, 0] * dx + inv[t, 0, 1] * dy + inv[t, 0, 2] * dz
+            w2 = inv[t, 1, 0] * dx + inv[t, 1, 1] * dy + inv[t, 1, 2] * dz
+            w3 = inv[t, 2, 0] * dx + inv[t, 2, 1] * dy + inv[t, 2, 2] * dz
+            w = min(1.0 - (w1 + w2 + w3), w1, w2, w3)
+            if w > best_w[i]:
+                best_w[i], best[i] = w, t
+    return best, best_w
+
+
+@njit(cache=True)
 def _closest_on_triangle(p, a, b, c):
     """Closest point to p on triangle abc (Ericson, Real-Time Collision Detection 5.1.5)."""
     ab, ac, ap = b - a, c - a, p - a
@@ -53,18 +74,42 @@ def _closest_on_triangle(p, a, b, c):
     return a + ab * (vb * denom) + ac * (vc * denom)
 
 
-@njit(cache=True)
 def nearest_triangle(points, vertices, triangles):
-    """Index of the nearest triangle and the distance to it [m] for each point (brute force)."""
+    """Index of the nearest triangle and the distance to it [m] for each point: the first of the
+    nearest in index order, exactly as a brute-force pass over every triangle gives them.
+
+    Each point's pass starts from a bound, its distance to the triangle whose centroid is nearest
+    (a k-d tree), and skips every triangle whose bounding sphere lies beyond it: the fine hand's
+    13,000 outside skin vertices against its boundary, 6.5 s brute force, in a fraction of that."""
+    points = np.asarray(points, dtype=np.float64)
+    tri = np.asarray(triangles, dtype=np.int64)
+    corners = vertices[tri]                                           # (T, 3, 3)
+    centre = corners.mean(axis=1)
+    radius = np.linalg.norm(corners - centre[:, None], axis=2).max(axis=1)
+    _, seed = cKDTree(centre).query(points, k=1)
+    return _nearest_triangle(points, vertices, tri, centre, radius, np.asarray(seed, dtype=np.int64))
+
+
+@njit(cache=True)
+def _nearest_triangle(points, vertices, triangles, centre, radius, seed):
     n = points.shape[0]
     best = np.zeros(n, dtype=np.int64)
     dist = np.empty(n)
     for i in range(n):
+        p = points[i]
+        s = seed[i]
+        q = _closest_on_triangle(p, vertices[triangles[s, 0]], vertices[triangles[s, 1]], vertices[triangles[s, 2]])
+        # a bound a hair above the seed's distance: the seed and any triangle as near are visited
+        # in index order below, so the first of the nearest wins as in a brute-force pass
+        bound = np.sqrt(np.sum((p - q) ** 2)) * (1.0 + 1e-9) + 1e-15
         bd = 1e30
         for t in range(triangles.shape[0]):
-            q = _closest_on_triangle(points[i], vertices[triangles[t, 0]], vertices[triangles[t, 1]],
+            dc = np.sqrt((p[0] - centre[t, 0]) ** 2 + (p[1] - centre[t, 1]) ** 2 + (p[2] - centre[t, 2]) ** 2)
+            if dc - radius[t] > bound:
+                continue  # every point of t is farther than the bound
+            q = _closest_on_triangle(p, vertices[triangles[t, 0]], vertices[triangles[t, 1]],
                                      vertices[triangles[t, 2]])
-            d = np.sum((points[i] - q) ** 2)
+            d = np.sum((p - q) ** 2)
             if d < bd:
                 bd = d
                 best[i] = t
@@ -88,11 +133,15 @@ def embed_points(nodes, tets, points):
         best_min = np.where(better, wmin, best_min)
         best_tet = np.where(better, cand[:, j], best_tet)
     # the nearest centroids can miss the containing tet of a coarse, stretched mesh: test all
-    for p in np.flatnonzero(best_min < -INSIDE_TOLERANCE):
-        w = barycentric(nodes, tets, np.arange(len(tets)), np.repeat(points[p][None], len(tets), 0))
-        t = int(np.argmax(w.min(axis=1)))
-        if w[t].min() > best_min[p]:
-            best_min[p], best_tet[p] = w[t].min(), t
+    # (every skin vertex outside the mesh comes here: 13,000 of the fine hand's, 47 s of its 55 s
+    # build as one batched solve per point; 1 s as one compiled pass with each tet's inverse)
+    rest = np.flatnonzero(best_min < -INSIDE_TOLERANCE)
+    if len(rest):
+        p0 = nodes[tets[:, 0]]
+        edges = np.stack([nodes[tets[:, 1]] - p0, nodes[tets[:, 2]] - p0, nodes[tets[:, 3]] - p0], axis=2)
+        t_all, w_all = _best_of_all_tets(np.linalg.inv(edges), p0, points[rest])
+        better = w_all > best_min[rest]
+        best_min[rest[better]], best_tet[rest[better]] = w_all[better], t_all[better]
     inside = best_min >= -INSIDE_TOLERANCE
     distance = np.zeros(len(points))
     outside = np.flatnonzero(~inside)
