@@ -1,5 +1,6 @@
 """run_summary's latency figure: start-up is reported apart, not mixed into the percentiles."""
 import numpy as np
+import pytest
 
 from softhand_sim.commands.run_summary import frame_latency_ms, steady_rate_hz
 
@@ -107,13 +108,13 @@ def test_summary_says_when_sizing_failed_and_when_nothing_was_reported(tmp_path)
 
 # ------------------------------------------------------------------ two hands
 
-def _pose_array_record(topic, t_ns, n):
+def _pose_array_record(topic, t_ns, n, z=0.0):
     from softhand_sim.ros.bagio import TYPESTORE, serialize
 
     T = TYPESTORE.types
     header = T["std_msgs/msg/Header"](stamp=T["builtin_interfaces/msg/Time"](sec=t_ns // 10**9, nanosec=t_ns % 10**9),
                                       frame_id="world")
-    pose = T["geometry_msgs/msg/Pose"](position=T["geometry_msgs/msg/Point"](x=0.0, y=0.0, z=0.0),
+    pose = T["geometry_msgs/msg/Pose"](position=T["geometry_msgs/msg/Point"](x=0.0, y=0.0, z=z),
                                        orientation=T["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=0.0, w=1.0))
     msg = T["geometry_msgs/msg/PoseArray"](header=header, poses=[pose] * n)
     return topic, "geometry_msgs/msg/PoseArray", t_ns, serialize(msg, "geometry_msgs/msg/PoseArray")
@@ -235,3 +236,22 @@ def test_summary_reports_every_objects_lift_and_where_it_ended(tmp_path):
     assert "other objects lifted: big_box 8.3 cm" in text and "mug" not in text
     assert ("objects moved, end against start: ball 20.0 cm (x +0.0, y +20.0, z +0.0), "
             "big_box 5.0 cm (x +0.0, y +0.0, z +5.0)") in text, text
+
+
+@pytest.mark.parametrize("bad", [None, "/hand/right/bones", "/tracker/right/hand_joints"])
+def test_summary_finds_a_non_finite_pose(tmp_path, bad):
+    """One NaN coordinate in one bones message or tracker frame (read as numpy, not as message
+    objects) makes `all_finite` false; none leaves it true."""
+    from softhand_sim.commands.run_summary import summarize_run
+    from softhand_sim.ros.bagio import write_bag
+
+    ms = 10**6
+    records = [_pose_array_record("/tracker/right/hand_joints", T0_NS + k * 10 * ms, 26,
+                                  z=float("nan") if bad == "/tracker/right/hand_joints" and k == 7 else 0.0)
+               for k in range(20)]
+    records += [_pose_array_record("/hand/right/bones", T0_NS + 2 * ms + k * 16 * ms, 16,
+                                   z=float("nan") if bad == "/hand/right/bones" and k == 5 else 0.0)
+                for k in range(10)]
+    records.sort(key=lambda r: r[2])
+    write_bag(tmp_path / "run", records)
+    assert summarize_run(tmp_path / "run")["all_finite"] is (bad is None)

@@ -41,7 +41,7 @@ from pathlib import Path
 
 import numpy as np
 
-from softhand_sim.topics import LEGACY_TRACKER, SIDES, SKIN_OBJECT, hand_topic, side_of, tracker_topic
+from softhand_sim.topics import LEGACY_TRACKER, POSE_ARRAY, SIDES, SKIN_OBJECT, hand_topic, side_of, tracker_topic
 
 LIFT_OBJECT = "ball"
 TRACKING_NODE = "tracking_node"  # the second hand's runs as tracking_node_left (status names carry it)
@@ -234,7 +234,7 @@ def summarize_run(bag_dir, bag_name="", exit_codes=None, input_bag=None, play_lo
     """The figures of the module docstring for the recording at bag_dir. input_bag: the bag that
     was played (its frame counts); play_log: play_node's log; legacy_side: the hand an old
     single-hand input bag was played as."""
-    from softhand_sim.ros.msgs import status_node  # ROS message packages only when reading a run
+    from softhand_sim.ros.msgs import pose_array_from_cdr, status_node  # ROS packages only when reading a run
 
     bag_dir = Path(bag_dir)
     summary = {"bag": bag_name, "exit_codes": exit_codes or {}}
@@ -257,6 +257,13 @@ def summarize_run(bag_dir, bag_name="", exit_codes=None, input_bag=None, play_lo
             count += 1
             t = t_ns * 1e-9
             times[conn.topic].append(t)
+            if conn.msgtype == POSE_ARRAY:  # tracker frames and bones, half of a run's messages:
+                try:                        # read as numpy (a third of the summary's time as objects)
+                    if not np.all(np.isfinite(pose_array_from_cdr(raw)[0])):
+                        all_finite = False
+                    continue
+                except ValueError:
+                    pass  # not what a PoseArray's CDR should be: the deserializer says what it is
             msg = store.deserialize_cdr(raw, conn.msgtype)
             if conn.msgtype == "sensor_msgs/msg/PointCloud2":
                 cloud = _pointcloud_fields(msg)
