@@ -85,32 +85,33 @@ def _near_distances(verts, faces, origin, voxel, nx, ny, nz, dist, closest):
 
 
 @njit(cache=True)
-def _check_neighbour(verts, faces, origin, voxel, ny, nz, dist, closest, i, j, k, i2, j2, k2):
-    t = closest[(i2 * ny + j2) * nz + k2]
-    if t < 0:
-        return
-    n = (i * ny + j) * nz + k
-    d = _point_triangle_distance(origin[0] + i * voxel, origin[1] + j * voxel,
-                                 origin[2] + k * voxel,
-                                 verts[faces[t, 0]], verts[faces[t, 1]], verts[faces[t, 2]])
-    if d < dist[n]:
-        dist[n] = d
-        closest[n] = t
-
-
-@njit(cache=True)
 def _sweep(verts, faces, origin, voxel, nx, ny, nz, dist, closest, di, dj, dk):
+    """One closest-triangle propagation sweep in the direction (di, dj, dk): each node takes the
+    closest triangle of its three upwind neighbours and their diagonal when that is nearer. A
+    neighbour's triangle that is already the node's own is skipped (the node's distance is that
+    triangle's: a node's closest is only ever set together with its distance)."""
     i0, i1 = (1, nx) if di > 0 else (nx - 2, -1)
     j0, j1 = (1, ny) if dj > 0 else (ny - 2, -1)
     k0, k1 = (1, nz) if dk > 0 else (nz - 2, -1)
+    up = np.empty(4, np.int64)
     for i in range(i0, i1, di):
+        px = origin[0] + i * voxel
         for j in range(j0, j1, dj):
+            py = origin[1] + j * voxel
+            row, row_i, row_j = (i * ny + j) * nz, ((i - di) * ny + j) * nz, (i * ny + j - dj) * nz
+            row_ij = ((i - di) * ny + j - dj) * nz
             for k in range(k0, k1, dk):
-                _check_neighbour(verts, faces, origin, voxel, ny, nz, dist, closest, i, j, k, i - di, j, k)
-                _check_neighbour(verts, faces, origin, voxel, ny, nz, dist, closest, i, j, k, i, j - dj, k)
-                _check_neighbour(verts, faces, origin, voxel, ny, nz, dist, closest, i, j, k, i, j, k - dk)
-                _check_neighbour(verts, faces, origin, voxel, ny, nz, dist, closest, i, j, k,
-                                 i - di, j - dj, k - dk)
+                n = row + k
+                up[0], up[1], up[2], up[3] = row_i + k, row_j + k, row + k - dk, row_ij + k - dk
+                for m in range(4):
+                    t = closest[up[m]]
+                    if t < 0 or t == closest[n]:
+                        continue
+                    d = _point_triangle_distance(px, py, origin[2] + k * voxel,
+                                                 verts[faces[t, 0]], verts[faces[t, 1]], verts[faces[t, 2]])
+                    if d < dist[n]:
+                        dist[n] = d
+                        closest[n] = t
 
 
 @njit(cache=True)
