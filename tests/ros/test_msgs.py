@@ -274,3 +274,25 @@ def test_fast_triangle_marker_bytes_equal_rclpy_serialization():
         assert deserialize_message(fast_bytes, Marker) == deserialize_message(serialize_message(ref), Marker)
     back = deserialize_message(fast.serialize(v, f, 3.0), Marker)
     assert len(back.points) == 210 and back.points[5].y == v[f[1, 2], 1]
+
+
+def test_marker_points_read_from_cdr_as_rclpy_reads_them():
+    """marker_points_from_cdr (the preview's reader of skin markers) gives the points rclpy
+    decodes, for every length of frame_id and ns modulo the alignments (each string shifts what
+    follows), with and without points, from rclpy's serialization and from the sim's numpy-built
+    one; bytes too short for their point count are refused by name."""
+    rng = np.random.default_rng(9)
+    v = rng.normal(size=(30, 3))
+    f = rng.integers(0, 30, size=(12, 3))
+    for frame in ("", "w", "wo", "wor", "worl", "world", "world_frame"):
+        for ns in ("", "s", "sk", "ski", "skin", "skin_x", "skin_xyz"):
+            for tris in (f, f[:0]):
+                raw = serialize_message(rm.triangle_marker(v, tris, 3.5, ns=ns, frame_id=frame))
+                expected = np.array([[p.x, p.y, p.z] for p in deserialize_message(raw, Marker).points]).reshape(-1, 3)
+                np.testing.assert_array_equal(rm.marker_points_from_cdr(raw), expected)
+    fast = rm.TriangleMarkerSerializer(ns="skin", marker_id=1).serialize(v, f, 2.0)
+    np.testing.assert_array_equal(rm.marker_points_from_cdr(fast), v[f.reshape(-1)])
+    for bad, what in ((b"", "bytes"), (fast[:-220], "points need"),  # cut within the 36 points
+                      (b"\x00\x01\x00\x00" + bytes(8) + (99).to_bytes(4, "little"), "string")):
+        with pytest.raises(ValueError, match=what):
+            rm.marker_points_from_cdr(bad)

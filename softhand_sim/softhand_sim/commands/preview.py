@@ -38,6 +38,8 @@ def read_frames(bag_dir, max_frames=60):
     from rosbags.rosbag2 import Reader
     from rosbags.typesys import Stores, get_typestore
 
+    from softhand_sim.ros.msgs import marker_points_from_cdr
+
     store = get_typestore(Stores.ROS2_JAZZY)
     skins, objects, latest = [], {}, {}
     marker_topics = {hand_topic(side, "skin_marker") for side in SIDES}
@@ -46,15 +48,17 @@ def read_frames(bag_dir, max_frames=60):
         # the hands that have markers (the recorder lists every hand's topic, messages or not)
         sides = [s for s in SIDES if any(c.topic == hand_topic(s, "skin_marker") and c.msgcount for c in conns)]
         for conn, t_ns, raw in reader.messages(connections=conns) if conns else ():
-            msg = store.deserialize_cdr(raw, conn.msgtype)
             t = t_ns * 1e-9
             if conn.topic in marker_topics:
-                pts = np.array([[p.x, p.y, p.z] for p in msg.points], dtype=np.float64)
+                try:  # 70,000 points a skin: read where they lie, not as 70,000 objects
+                    pts = marker_points_from_cdr(raw)
+                except ValueError:
+                    continue  # not a Marker's CDR: nothing to draw from it
                 if pts.size and pts.shape[0] % 3 == 0:
                     latest[side_of(conn.topic)] = pts
                     if side_of(conn.topic) == sides[-1]:
                         skins.append((t, np.vstack(list(latest.values()))))
-            elif msg.points:
+            elif (msg := store.deserialize_cdr(raw, conn.msgtype)).points:
                 for name, tf in zip(msg.joint_names, msg.points[0].transforms):
                     pose = np.array([tf.translation.x, tf.translation.y, tf.translation.z,
                                      tf.rotation.x, tf.rotation.y, tf.rotation.z, tf.rotation.w])
