@@ -370,7 +370,8 @@ def lan_runs(tmp_path_factory):
     result["runs"] = {r["name"]: r for r in runs}
     for r in runs:
         r["data"] = read_bag(r["bag"])
-        r["summary"] = summarize_run(r["bag"], bag_name=r["bag_name"])
+        # the bad networks' checks read only all_finite of the summary: no lag and fidelity scores
+        r["summary"] = summarize_run(r["bag"], bag_name=r["bag_name"], scores=r["name"] == "clean")
     return result
 
 

@@ -202,6 +202,11 @@ def test_summary_scores_each_hand_against_the_tracked_one(tmp_path):
     # and what the input's own noise is (this recording's tracked hand has none)
     assert f["tracker_noise_mm"] < 0.01, f
     assert "(tracker noise 0.00 mm per coordinate)" in format_summary(offset, tmp_path)
+    # scores=False: everything else, without the lag and fidelity (and the summary still prints)
+    bare = summarize_run(tmp_path / "offset", scores=False)
+    assert not {"lag_ms", "fidelity"} & set(bare["hands"]["right"])
+    assert bare["hands"]["right"]["tracker_frames"] == offset["hands"]["right"]["tracker_frames"]
+    assert "palm 5.0" not in format_summary(bare, tmp_path)
 
 
 def test_summary_reports_every_objects_lift_and_where_it_ended(tmp_path):

@@ -230,10 +230,12 @@ def tracking_frame_counts(values: dict) -> dict:
             for key in ("frames_received", "frames_accepted", "frames_rejected") if key in values}
 
 
-def summarize_run(bag_dir, bag_name="", exit_codes=None, input_bag=None, play_log=None, legacy_side="right", repeat=1):
+def summarize_run(bag_dir, bag_name="", exit_codes=None, input_bag=None, play_log=None, legacy_side="right", repeat=1,
+                  scores=True):
     """The figures of the module docstring for the recording at bag_dir. input_bag: the bag that
     was played (its frame counts); play_log: play_node's log; legacy_side: the hand an old
-    single-hand input bag was played as."""
+    single-hand input bag was played as. scores=False leaves out each hand's lag and fidelity
+    (`lag_ms`, `fidelity`): they read the recording twice more, over half of a summary's time."""
     from softhand_sim.ros.msgs import pose_array_from_cdr, status_node  # ROS packages only when reading a run
 
     bag_dir = Path(bag_dir)
@@ -332,7 +334,7 @@ def summarize_run(bag_dir, bag_name="", exit_codes=None, input_bag=None, play_lo
             "max_contacts": max_contacts_hand.get(side, 0),
             "max_skin_contacts": max_skin_hand.get(side, 0),
         }
-        if tracker_t and bones_t:
+        if scores and tracker_t and bones_t:
             if bone_length is None:
                 from softhand_sim.commands.fidelity import bone_lengths_of
                 bone_length = bone_lengths_of(bag_dir)[0]
