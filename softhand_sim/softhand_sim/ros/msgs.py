@@ -150,29 +150,39 @@ def pose_array_cdr(poses, stamp_ns: int, frame_id: str = WORLD_FRAME) -> bytes:
     return _CDR_LE + body + p.astype("<f8").tobytes()
 
 
+def _cdr_body(raw: bytes, what: str):
+    """(body after the 4-byte encapsulation header, numpy byte-order prefix) of CDR bytes."""
+    buf = memoryview(raw)
+    if len(buf) < 16 or buf[0] != 0 or buf[1] not in (0, 1):
+        raise ValueError(f"not a CDR {what}: {len(buf)} bytes starting {bytes(buf[:4])!r}")
+    return buf[4:], "<" if buf[1] == 1 else ">"
+
+
+def _cdr_f8_rows(body, off: int, e: str, width: int, what: str, rows: str) -> np.ndarray:
+    """The sequence at `off` (aligned 4) of `body` whose elements are `width` float64 each, as an
+    (n, width) array: its uint32 count, then the values aligned 8."""
+    off += _pad(off, 4)
+    if off + 4 > len(body):
+        raise ValueError(f"not a CDR {what}: {len(body)} bytes end before the {rows[:-1]} count")
+    n = int(np.frombuffer(body, dtype=e + "u4", count=1, offset=off)[0])
+    off += 4
+    off += _pad(off, 8) if n else 0
+    if off + 8 * width * n > len(body):
+        raise ValueError(f"not a CDR {what}: {n} {rows} need {8 * width * n} bytes, {len(body) - off} left")
+    return np.frombuffer(body, dtype=e + "f8", count=width * n, offset=off).reshape(n, width).astype(np.float64)
+
+
 def pose_array_from_cdr(raw: bytes):
     """(poses (n, 7) float64, stamp [ns], frame_id) of a PoseArray's CDR bytes (either byte order).
     ValueError naming what is wrong for bytes that are not a PoseArray."""
-    buf = memoryview(raw)
-    if len(buf) < 16 or buf[0] != 0 or buf[1] not in (0, 1):
-        raise ValueError(f"not a CDR PoseArray: {len(buf)} bytes starting {bytes(buf[:4])!r}")
-    e = "<" if buf[1] == 1 else ">"
-    body = buf[4:]
+    body, e = _cdr_body(raw, "PoseArray")
     sec, nsec, nlen = np.frombuffer(body, dtype=e + "u4", count=3)
     sec = int(np.int32(sec))
     off = 12 + int(nlen)
     if nlen < 1 or off > len(body):
         raise ValueError(f"not a CDR PoseArray: frame_id length {int(nlen)} in {len(body)} bytes")
     frame_id = bytes(body[12:off - 1]).decode(errors="replace")
-    off += _pad(off, 4)
-    if off + 4 > len(body):
-        raise ValueError(f"not a CDR PoseArray: {len(body)} bytes end before the pose count")
-    n = int(np.frombuffer(body, dtype=e + "u4", count=1, offset=off)[0])
-    off += 4
-    off += _pad(off, 8) if n else 0
-    if off + 56 * n > len(body):
-        raise ValueError(f"not a CDR PoseArray: {n} poses need {56 * n} bytes, {len(body) - off} left")
-    poses = np.frombuffer(body, dtype=e + "f8", count=7 * n, offset=off).reshape(n, 7).astype(np.float64)
+    poses = _cdr_f8_rows(body, off, e, 7, "PoseArray", "poses")
     return poses, sec * _NS_PER_S + int(nsec), frame_id
 
 
@@ -509,25 +519,13 @@ def marker_points_from_cdr(raw: bytes) -> np.ndarray:
     read where they lie: after the header, ns, id, type, action, pose, scale, color, lifetime and
     frame_locked. For a skin marker (70,000 points) the deserializer's objects took 17 ms a message,
     this 0.08 ms. ValueError naming what is wrong for bytes that are not a Marker."""
-    buf = memoryview(raw)
-    if len(buf) < 16 or buf[0] != 0 or buf[1] not in (0, 1):
-        raise ValueError(f"not a CDR Marker: {len(buf)} bytes starting {bytes(buf[:4])!r}")
-    e = "<" if buf[1] == 1 else ">"
-    body = buf[4:]
+    body, e = _cdr_body(raw, "Marker")
     off = _cdr_string_end(body, 8, e)   # stamp (8 bytes), then header.frame_id
     off = _cdr_string_end(body, off, e)  # ns
     off += _pad(off, 4) + 12            # id, type, action
     off += _pad(off, 8) + 80            # pose (7 float64), scale (3)
     off += 16 + 8 + 1                   # color (4 float32), lifetime (int32, uint32), frame_locked
-    off += _pad(off, 4)
-    if off + 4 > len(body):
-        raise ValueError(f"not a CDR Marker: {len(body)} bytes end before the point count")
-    n = int(np.frombuffer(body, dtype=e + "u4", count=1, offset=off)[0])
-    off += 4
-    off += _pad(off, 8) if n else 0
-    if off + 24 * n > len(body):
-        raise ValueError(f"not a CDR Marker: {n} points need {24 * n} bytes, {len(body) - off} left")
-    return np.frombuffer(body, dtype=e + "f8", count=3 * n, offset=off).reshape(n, 3).astype(np.float64)
+    return _cdr_f8_rows(body, off, e, 3, "Marker", "points")
 
 
 def _set_pose(m: Marker, pose) -> None:
