@@ -346,7 +346,7 @@ def lan_runs(tmp_path_factory):
             for name, bag_name, impairment in PHASES:
                 runs.append(run_phase(hs, lan, out, name, bag_name, impairment))
                 assert not runs[-1]["dead"], f"nodes died in {name}: {runs[-1]['dead']}\n{hs.tails()}"
-                if name == "clean" and not summarize_run(runs[-1]["bag"], bag_name=bag_name)["ball_lifted"]:
+                if name == "clean" and not summarize_run(runs[-1]["bag"], bag_name=bag_name, scores=False)["ball_lifted"]:
                     # the grasp slip seen on fresh clones in the single-host demo too (README, "What
                     # the tests prove"): tried once more, as the node-level demo tests are; counted
                     result["clean_retries"] = 1
@@ -370,8 +370,8 @@ def lan_runs(tmp_path_factory):
     result["runs"] = {r["name"]: r for r in runs}
     for r in runs:
         r["data"] = read_bag(r["bag"])
-        # the bad networks' checks read only all_finite of the summary: no lag and fidelity scores
-        r["summary"] = summarize_run(r["bag"], bag_name=r["bag_name"], scores=r["name"] == "clean")
+        # the checks read the ball's lift and all_finite of the summary: no lag and fidelity scores
+        r["summary"] = summarize_run(r["bag"], bag_name=r["bag_name"], scores=False)
     return result
 
 
