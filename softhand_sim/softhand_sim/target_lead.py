@@ -25,7 +25,9 @@ what the hand holds). The lead drops to zero at once (faded over a ramp, a hand 
 the table with a 20 ms lead pressed its skin 6.8 mm into it; the press test allows 5 mm) the step
 after the hand's skin comes within NEAR_GATE of an object, so that the step that makes the first
 contact is not led either (gated on contact alone, that step pressed the table ~5 N harder),
-stays off for CONTACT_HOLD after the hand was last that near and comes back over RAMP.
+stays off for CONTACT_HOLD after the hand was last that near and comes back over RAMP. It comes
+back only while targets come: targets older than MAX_GAP (the tracking stopped, a link went down)
+are held with the gain they had, not led anew by their last velocity.
 
 The lead puts each target where the tracked bone is at the end of the step, but the palm's spring
 only follows it by stretching: the whole hand (bones and tissue, 0.37 kg) hangs on the palm's
@@ -174,10 +176,15 @@ class TargetLead:
         MAX_LEAD past their stamp), scaled by the contact gate; None before the first targets."""
         if self.poses is None:
             return None
+        stale = self.stamp is not None and t_end - self.stamp > MAX_GAP
         if t_end - self.last_contact_t <= CONTACT_HOLD:
             self.gain = 0.0
-        elif self._last_t is not None:
+        elif self._last_t is not None and not stale:
             self.gain = min(1.0, self.gain + max(t_end - self._last_t, 0.0) / RAMP)
+        # stale targets (none for MAX_GAP: the tracking stopped, a link went down) keep the gain
+        # they had: held, not led anew. A hand lifting the ball when its link went down let go of
+        # the ball's copy when that went stale, and the lead coming back then moved its held
+        # target 11 mm up (by the last velocity, 40 ms) halfway through the outage
         self._last_t = t_end
         if not self.enabled or self.vel is None or self.stamp is None:
             self.lead = 0.0

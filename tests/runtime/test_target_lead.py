@@ -58,20 +58,49 @@ def test_targets_reach_the_end_of_the_step_in_free_air():
         assert _quat_angle(got[:, 3:], want[:, 3:]).max() < 1e-9
 
 
+def _feed(lead, until, k0=0):
+    """Targets of _motion every 4 ms (250 Hz, as tracking_node sends them) from step k0 up to
+    time `until` [s]; returns the next step."""
+    k = k0
+    while 0.004 * k <= until + 1e-12:
+        lead.on_target(_motion(0.004 * k)[0], 0.004 * k)
+        k += 1
+    return k
+
+
 def test_contact_drops_the_lead_at_once_and_it_returns_after_the_hold():
     lead = TargetLead()
-    for k in range(10):
-        lead.on_target(_motion(0.004 * k)[0], 0.004 * k)
+    k = _feed(lead, 0.036)
     t = 0.036
     assert lead.targets_at(t + 0.01) is not None and lead.lead > 0
     lead.on_contacts(5, t + 0.01)
     np.testing.assert_array_equal(lead.targets_at(t + 0.02), lead.poses)  # the step right after: none
     assert lead.lead == 0.0
+    k = _feed(lead, t + CONTACT_HOLD, k)
     assert lead.targets_at(t + 0.01 + CONTACT_HOLD) is lead.poses       # held off
+    k = _feed(lead, t + CONTACT_HOLD + 0.5 * RAMP, k)
     lead.targets_at(t + 0.01 + CONTACT_HOLD + 0.5 * RAMP)               # ramping back
     assert 0.0 < lead.gain < 1.0
+    k = _feed(lead, t + CONTACT_HOLD + 2 * RAMP, k)
     lead.targets_at(t + 0.01 + CONTACT_HOLD + 2 * RAMP)
     assert lead.gain == 1.0
+
+
+def test_stale_targets_are_held_not_led_anew():
+    """Targets stop coming (a link down, the tracking stopped) while the hand touches something,
+    and the contact ends while none come: the held targets stay as they came, however long (the
+    lead does not come back by the last velocity: across hosts it moved a held hand 11 mm in the
+    middle of an outage). Targets coming again bring it back."""
+    lead = TargetLead()
+    _feed(lead, 0.2)
+    lead.on_contacts(5, 0.2)
+    held = lead.poses
+    for t in np.arange(0.21, 1.5, 1 / 150):  # contact gone at 0.2 s, no target after it
+        np.testing.assert_array_equal(lead.targets_at(t), held)
+        assert lead.lead == 0.0
+    _feed(lead, 1.6, int(round(1.5 / 0.004)))  # tracking again: the gate's hold, then the ramp
+    lead.targets_at(1.6 + 0.004)
+    assert lead.gain == 1.0 and lead.lead > 0.0
 
 
 def test_an_object_within_the_near_gate_drops_the_lead_before_contact():
@@ -135,9 +164,11 @@ def test_acceleration_is_the_second_difference_of_the_palm_targets():
     lead.targets_at(0.13)
     np.testing.assert_array_equal(lead.acceleration(0.13, palm(0.13)), 0.0)
     t = 0.115 + CONTACT_HOLD                                # the hold's end: still nil
+    k = _feed(lead, t, 10)                                  # (targets keep coming: stale ones are held)
     lead.targets_at(t)
     np.testing.assert_array_equal(lead.acceleration(t, palm(t)), 0.0)
     t += 0.2 * RAMP                                         # ramping back
+    _feed(lead, t, k)
     lead.targets_at(t)
     g = lead.acceleration(t, palm(t))
     assert 0.0 < lead.gain < 1.0
