@@ -55,25 +55,26 @@ class LiveLag:
             self.add("tracked", t, poses)
 
     def wants(self, layer: str, t: float) -> bool:
-        """Whether add(layer, t, ...) would keep a sample at t [s] (the recorder asks before it
-        parses a message): not within 1 / LAYER_HZ after the layer's last kept sample."""
+        """Whether add(layer, t, ...) keeps a sample at t [s] (the recorder asks before it parses a
+        message): one newer than the layer's last, and for the two thinned layers at least
+        1 / LAYER_HZ newer; or one older than the window (a replay restarted its clock)."""
         buf = self._data[layer]
-        if layer == "tracked" or not buf:
+        if not buf:
             return True
         last = buf[-1][0]
-        return not (last - self.window_s <= t < last + 1.0 / LAYER_HZ)
+        if t < last - self.window_s:
+            return True
+        return t > last and (layer == "tracked" or t - last >= 1.0 / LAYER_HZ)
 
     def add(self, layer: str, t: float, poses) -> None:
-        """Bones (16, 7) of `layer` at time t [s]. A sample older than the layer's last is dropped;
-        one older by more than the window (a replay restarted its clock) starts the layer afresh."""
+        """Bones (16, 7) of `layer` at time t [s], kept as `wants` says; one older than the window
+        starts the layer afresh."""
         buf = self._data[layer]
         with self._lock:
-            if buf and t <= buf[-1][0]:
-                if t >= buf[-1][0] - self.window_s:
-                    return
-                buf.clear()
-            if layer != "tracked" and buf and t - buf[-1][0] < 1.0 / LAYER_HZ:
+            if not self.wants(layer, t):
                 return
+            if buf and t < buf[-1][0] - self.window_s:
+                buf.clear()
             buf.append((float(t), np.array(poses, dtype=np.float64)))
             while buf and buf[0][0] < t - self.window_s:
                 buf.popleft()

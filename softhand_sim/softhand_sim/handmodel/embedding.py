@@ -17,11 +17,15 @@ INSIDE_TOLERANCE = 1e-9  # smallest barycentric weight still counted as inside
 CANDIDATE_TETS = 48  # nearest tet centroids tested for containment
 
 
+def _edge_matrices(p):
+    """(n,3,3) of tets' corners p (n,4,3): the edges from the first corner as columns."""
+    return np.stack([p[:, 1] - p[:, 0], p[:, 2] - p[:, 0], p[:, 3] - p[:, 0]], axis=2)
+
+
 def barycentric(nodes, tets, tet_index, points):
     """Barycentric weights (n,4) of points (n,3) in tets[tet_index] (n,)."""
     p = nodes[tets[tet_index]]
-    m = np.stack([p[:, 1] - p[:, 0], p[:, 2] - p[:, 0], p[:, 3] - p[:, 0]], axis=2)
-    w123 = np.linalg.solve(m, (points - p[:, 0])[:, :, None])[:, :, 0]
+    w123 = np.linalg.solve(_edge_matrices(p), (points - p[:, 0])[:, :, None])[:, :, 0]
     return np.concatenate([1.0 - w123.sum(axis=1, keepdims=True), w123], axis=1)
 
 
@@ -138,9 +142,8 @@ def embed_points(nodes, tets, points):
     # tet's inverse)
     rest = np.flatnonzero(best_min < -INSIDE_TOLERANCE)
     if len(rest):
-        p0 = nodes[tets[:, 0]]
-        edges = np.stack([nodes[tets[:, 1]] - p0, nodes[tets[:, 2]] - p0, nodes[tets[:, 3]] - p0], axis=2)
-        t_all, w_all = _best_of_all_tets(np.linalg.inv(edges), p0, points[rest])
+        corners = nodes[tets]
+        t_all, w_all = _best_of_all_tets(np.linalg.inv(_edge_matrices(corners)), corners[:, 0], points[rest])
         better = w_all > best_min[rest]
         best_min[rest[better]], best_tet[rest[better]] = w_all[better], t_all[better]
     inside = best_min >= -INSIDE_TOLERANCE
