@@ -386,8 +386,10 @@ class PlayNode(Node):
                 if time.monotonic() > deadline:
                     where = ", ".join(self._pubs_by_topic())
                     missing = self.missing_nodes()
-                    raise TimeoutError(f"{matched()} of {want} subscribers on {where} after "
-                                       f"{self.cfg['wait_timeout']} s"
+                    # "N of M" only when a count was asked for (--wait-subscribers): with node
+                    # names alone, "1 of 0 subscribers" read as if nothing had been waited for
+                    count = f"{matched()} of {want} subscribers" if want else f"{matched()} subscriber(s) matched"
+                    raise TimeoutError(f"{count} on {where} after {self.cfg['wait_timeout']} s"
                                        + (f"; not subscribed and matched: {', '.join(missing)}"
                                           f" (the graph shows: {self._subscribers_seen()})" if missing else ""))
                 if not self._sleep_until(time.monotonic() + 0.05):

@@ -78,6 +78,8 @@ class RosProc:
         try:
             return self.popen.wait(timeout=timeout)
         except subprocess.TimeoutExpired:
+            self.popen.send_signal(signal.SIGUSR1)  # a node's Python stacks into its output (run_node)
+            time.sleep(0.5)
             self.kill()
             raise AssertionError(f"{self.cmd[0]} ignored signal {sig} for {timeout} s\n{self.output()}") from None
 

@@ -155,6 +155,11 @@ class ProcessSet:
         try:
             proc.wait(grace)
         except subprocess.TimeoutExpired:
+            # the node's Python stacks into its log (run_node registers SIGUSR1), then SIGKILL
+            proc.send_signal(signal.SIGUSR1)
+            time.sleep(0.5)
+            log.write(f"[demo] {name} did not stop within {grace:.0f} s of SIGINT: killed\n")
+            log.flush()
             proc.kill()
             proc.wait()
         log.close()

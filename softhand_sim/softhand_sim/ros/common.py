@@ -11,6 +11,7 @@ Only `*_node.py`, `ros_*.py` and `cli.py` import this module (it imports rclpy).
 from __future__ import annotations
 
 import argparse
+import faulthandler
 import math
 import os
 import socket
@@ -267,6 +268,10 @@ def run_node(make_node: Callable[..., Node], args=None, init_args=None, drain_s:
     def on_signal(signum, frame):
         stop["signal"] = signum
 
+    # SIGUSR1 prints every thread's Python stack to stderr (the node's log) and goes on: the demo
+    # asks for it before it kills a node that did not stop in time, so the log says where it hung.
+    faulthandler.register(signal.SIGUSR1, all_threads=True)
+
     rclpy.init(args=init_args if init_args is not None else args,
                signal_handler_options=SignalHandlerOptions.NO)
     old = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
@@ -299,11 +304,21 @@ def run_node(make_node: Callable[..., Node], args=None, init_args=None, drain_s:
             close = getattr(node, "close", None)
             if callable(close):
                 close()
+        # rclpy's teardown takes well under a second; once (1 in ~30 demos on a loaded machine) a
+        # tracking_node did not end within the demo's 10 s: a stalled teardown prints where it
+        # stalls into the node's log after TEARDOWN_DUMP_S (and SIGUSR1 prints it at any time)
+        faulthandler.dump_traceback_later(TEARDOWN_DUMP_S, exit=False)
+        if node is not None:
             executor.remove_node(node)
             node.destroy_node()
         executor.shutdown(timeout_sec=0)
         rclpy.try_shutdown()
+        faulthandler.cancel_dump_traceback_later()
     return code
+
+
+#: [s] a node's rclpy teardown taking longer than this prints every thread's stack (run_node)
+TEARDOWN_DUMP_S = 5.0
 
 
 #: The executor of every node (run_node): "events" (default) or "single", from SOFTHAND_EXECUTOR.
