@@ -22,6 +22,9 @@ still give the lag to the millisecond, and the cost of a report follows the samp
 demo's recording (one hand, the simulated layer at 150 Hz) a report took 70-96 ms of the
 recorder's CPU with that layer kept whole, 53-56 ms thinned. `wants` lets the recorder skip a
 thinned sample before it parses the message (36 instead of 54 us per message fed).
+
+With two hands the recorder reports one hand per period, the hands taking turns (`HandLags`): both
+every period took ~20 % of a core in a two-hand demo, whose sim_node then fell short of its rate.
 """
 from __future__ import annotations
 
@@ -106,3 +109,29 @@ class LiveLag:
             if palm_key:
                 out[palm_key] = round(r["lag_palm_ms"], 1)
         return out
+
+
+class HandLags:
+    """A LiveLag per hand, reported one hand at a time: `report_next()` reports the next of the
+    hands heard from (those fed a sample, sorted), in turn, so a report costs one hand's search
+    whatever the number of hands, and with two each hand's figures are refreshed every second call."""
+
+    def __init__(self, sides, window_s: float = WINDOW_S):
+        self.lags = {side: LiveLag(hand=side, window_s=window_s) for side in sides}
+        self.heard = set()  # sides fed at least one sample (only those are reported)
+        self._turn = 0
+
+    def __getitem__(self, side: str) -> LiveLag:
+        return self.lags[side]
+
+    def heard_from(self, side: str) -> None:
+        self.heard.add(side)
+
+    def report_next(self):
+        """(side, report) of the next hand in turn; None before any hand was heard from."""
+        sides = sorted(self.heard.copy())  # copy(): the recorder's callbacks add to it meanwhile
+        if not sides:
+            return None
+        side = sides[self._turn % len(sides)]
+        self._turn += 1
+        return side, self.lags[side].report()

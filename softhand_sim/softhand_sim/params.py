@@ -63,7 +63,7 @@ _PAPER = "paper Sect. 5.1"
 SIM = {
     "sim_rate": P(float, 0.0, "Hz", "full-simulation step rate; dt = 1/sim_rate (the paper reaches 45-65 steps/s); "
                   "0 = by hand count: 150 Hz for one hand (lag and latency, README 'Following without lag'), "
-                  "60 Hz for two (what two hands keep on two cores); else 10-2000", 0, 2000),
+                  "50 Hz for two (what two hands keep on two cores beside the other nodes); else 10-2000", 0, 2000),
     "max_step": P(float, 0.0, "s", "keep real time when the machine cannot keep sim_rate: a late tick steps the time "
                   "since the previous one, up to this long (0 or <= 1/sim_rate: always 1/sim_rate, and an overloaded "
                   "node falls into slow motion behind the tracked hand)", 0.0, 0.2),
@@ -284,7 +284,8 @@ RECORD = {
     "diagnostics_rate": P(float, 1.0, "Hz", "how often /diagnostics reports what is recorded and each hand's "
                           "live lag behind the tracked hand (softhand_sim/live_lag.py)", 0.01, 100.0),
     "live_lag": P(bool, True, "-", "measure each hand's lag from the tracker, intermediate and bones topics "
-                  "recorded (about 50 ms of CPU per hand per report)"),
+                  "recorded (about 50 ms of CPU per report; with two hands they take turns, each hand's "
+                  "figures refreshed every second report)"),
 }
 
 SCHEMA = {
@@ -339,9 +340,11 @@ def check_value(node: str, key: str, value, schema=None):
 # sim_rate 0: the rate by hand count. One hand at 150 Hz follows at about the 15 ms lag goal
 # (leap_grab's palm 13.5 ms offline, 15.0-17.7 through the nodes; at 60 Hz 18.6 and 23.5) with a
 # latency p99 of 7-11 ms where its step fits the period; two hands at 150 Hz do not fit on two
-# cores, so they keep 60. 100-120 Hz is avoided: around the Leap's 113 frames/s the palm error p95
-# rises to 9-14 mm (5.5-6 mm at 125-167 Hz; README, "Following without lag").
-AUTO_SIM_RATE = {1: 150.0, 2: 60.0}  # hands -> Hz
+# cores. They stepped at 60 Hz until the machine ran slower: then the two-hand demos overran 6-15 %
+# of their ticks at 60 Hz (52-55 steps/s) and 0.1-0.9 % at 50 (README, "Two hands"), so two hands
+# keep 50. 100-120 Hz is avoided: around the Leap's 113 frames/s the palm error p95 rises to 9-14 mm
+# (5.5-6 mm at 125-167 Hz; README, "Following without lag").
+AUTO_SIM_RATE = {1: 150.0, 2: 50.0}  # hands -> Hz
 
 
 def sim_rate_hz(params, n_hands: int) -> float:

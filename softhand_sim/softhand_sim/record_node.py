@@ -41,7 +41,8 @@ intermediate bones and simulated bones, keeps the last 2 s of each and reports i
 (status `record_node: recording`, at `diagnostics_rate`) how far each layer trails the tracked hand,
 as `softhand lag` measures a finished recording (softhand_sim/live_lag.py): `{side}_sim_lag_ms`,
 `{side}_sim_lag_palm_ms`, `{side}_intermediate_lag_ms` (NaN while the hand hardly moves), beside the
-messages and bytes written. It records its own /diagnostics, so the lags are in the bag (the
+messages and bytes written. One hand is measured per report, the hands taking turns (with two,
+each hand's figures are refreshed every second report and repeated in between). It records its own /diagnostics, so the lags are in the bag (the
 Foxglove layout plots them).
 
 Stopping: SIGINT or SIGTERM ends spin; close() writes the pending chunk, the summary and
@@ -161,19 +162,18 @@ class RecordNode(Node):
         # side -> LiveLag (live_lag.py), made here: made at a side's first message, its ~0.9 s of
         # imports and set-up blocked the callbacks, and a writer keeping the last 10 samples (/tf
         # at 60 Hz) overwrote some the recorder had not yet taken
-        self.live_lag = {}
-        self.lag_sides = set()  # the sides heard from: only those are reported
+        self.live_lag = None  # live_lag.HandLags: a LiveLag per hand, reported in turn
         self.lag_feeds = {}  # topic -> (side, layer) for the topics the live lag reads
         self.lag_values = {}  # side -> the last report, made in a thread of its own (_lag_reports)
         if cfg["live_lag"]:
-            from softhand_sim.live_lag import LiveLag
-            self.live_lag = {side: LiveLag(hand=side) for side in SIDES}
+            from softhand_sim.live_lag import HandLags
+            self.live_lag = HandLags(SIDES)
             for side in SIDES:
                 self.lag_feeds.update({tracker_topic(side): (side, "tracked"),
                                        hand_topic(side, "intermediate_bones"): (side, "intermediate"),
                                        hand_topic(side, "bones"): (side, "sim")})
-            # a report takes ~50 ms per hand: in the executor's thread it held back the recording's
-            # callbacks that long every second, so it runs in a daemon thread of its own
+            # a report takes ~50 ms: in the executor's thread it held back the recording's callbacks
+            # that long every second, so it runs in a daemon thread of its own
             self._lag_stop = threading.Event()
             threading.Thread(target=self._lag_reports, args=(1.0 / cfg["diagnostics_rate"],), name="live-lag",
                              daemon=True).start()
@@ -304,7 +304,7 @@ class RecordNode(Node):
             poses, stamp_ns, _frame = pose_array_from_cdr(raw)
         except ValueError:
             return  # not ours to judge: recorded as it came
-        self.lag_sides.add(side)
+        self.live_lag.heard_from(side)
         try:
             if layer == "tracked":
                 self.live_lag[side].add_frame(stamp_ns * 1e-9, poses)
@@ -321,9 +321,12 @@ class RecordNode(Node):
                 flush_chunk(self.writer)
 
     def _lag_reports(self, period: float) -> None:
+        """One hand's live lag per period, the hands heard from taking turns (live_lag.HandLags)."""
         while not self._lag_stop.wait(period):
-            for side in sorted(self.lag_sides.copy()):  # copy(): the callbacks add to it
-                self.lag_values[side] = self.live_lag[side].report()
+            turn = self.live_lag.report_next()
+            if turn is not None:
+                side, report = turn
+                self.lag_values[side] = report
 
     def collect_diagnostics(self):
         """What is recorded, and each hand's live lag ({side}_sim_lag_ms, ...; module doc)."""
@@ -347,7 +350,7 @@ class RecordNode(Node):
         """Finish the bag (pending chunk, summary, metadata.yaml); safe to call twice."""
         if self._closed:
             return
-        if self.live_lag:
+        if self.live_lag is not None:
             self._lag_stop.set()
         self._flush_stop.set()
         with self._writer_lock:

@@ -65,3 +65,25 @@ def test_a_still_hand_has_no_lag_to_report():
     assert times[-1] - times[0] <= WINDOW_S
     steps = np.diff([t for t, _ in lag._data["intermediate"]])
     assert steps.min() >= 1 / LAYER_HZ - 1e-9  # the 250 Hz layer kept at 60 Hz
+
+
+def test_two_hands_are_reported_in_turn_each_with_its_own_lag():
+    """HandLags, as record_node uses it: one hand's report per call, the hands heard from taking
+    turns in sorted order (left, right), each report that hand's own injected delays (the right
+    hand's layers 8 / 30 ms behind, the left's 12 / 45 ms); nothing before a hand is heard from."""
+    from softhand_sim.live_lag import HandLags
+
+    motion = tracker_bags.grasp_short()
+    lags = HandLags(("right", "left"))
+    assert lags.report_next() is None
+    feed(lags["right"], motion, 1.0, 4.2)
+    lags.heard_from("right")
+    side, r = lags.report_next()
+    assert side == "right" and r["sim_lag_ms"] == pytest.approx(30.0, abs=1.0), r
+    feed(lags["left"], motion, 1.0, 4.2, delays=(0.012, 0.045))
+    lags.heard_from("left")
+    turns = [lags.report_next() for _ in range(4)]
+    assert [side for side, _ in turns] == ["right", "left", "right", "left"]
+    for side, r in turns:
+        want = (8.0, 30.0) if side == "right" else (12.0, 45.0)
+        assert (r["intermediate_lag_ms"], r["sim_lag_ms"]) == pytest.approx(want, abs=1.0), (side, r)
