@@ -340,8 +340,8 @@ def check_value(node: str, key: str, value, schema=None):
 # sim_rate 0: the rate by hand count. One hand at 150 Hz follows at about the 15 ms lag goal
 # (leap_grab's palm 13.5 ms offline, 15.0-17.7 through the nodes; at 60 Hz 18.6 and 23.5) with a
 # latency p99 of 7-11 ms where its step fits the period; two hands at 150 Hz do not fit on two
-# cores. They stepped at 60 Hz until the machine ran slower: then the two-hand demos overran 6-15 %
-# of their ticks at 60 Hz (52-55 steps/s) and 0.1-0.9 % at 50 (README, "Two hands"), so two hands
+# cores. They stepped at 60 Hz until the machine ran slower: then the two-hand demos overran 6-12 %
+# of their ticks at 60 Hz (52-55 steps/s) and 0.5-5.8 % at 50 (README, "Two hands"), so two hands
 # keep 50. 100-120 Hz is avoided: around the Leap's 113 frames/s the palm error p95 rises to 9-14 mm
 # (5.5-6 mm at 125-167 Hz; README, "Following without lag").
 AUTO_SIM_RATE = {1: 150.0, 2: 50.0}  # hands -> Hz
