@@ -42,8 +42,8 @@ intermediate bones and simulated bones, keeps the last 2 s of each and reports i
 as `softhand lag` measures a finished recording (softhand_sim/live_lag.py): `{side}_sim_lag_ms`,
 `{side}_sim_lag_palm_ms`, `{side}_intermediate_lag_ms` (NaN while the hand hardly moves), beside the
 messages and bytes written. One hand is measured per report, the hands taking turns (with two,
-each hand's figures are refreshed every second report and repeated in between). It records its own /diagnostics, so the lags are in the bag (the
-Foxglove layout plots them).
+each hand's figures are refreshed every second report and repeated in between). It records its
+own /diagnostics, so the lags are in the bag (the Foxglove layout plots them).
 
 Stopping: SIGINT or SIGTERM ends spin; close() writes the pending chunk, the summary and
 metadata.yaml, so every message that reached a callback is in the bag.

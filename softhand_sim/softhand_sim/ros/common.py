@@ -304,7 +304,7 @@ def run_node(make_node: Callable[..., Node], args=None, init_args=None, drain_s:
             close = getattr(node, "close", None)
             if callable(close):
                 close()
-        # rclpy's teardown takes well under a second; once (1 in ~30 demos on a loaded machine) a
+        # rclpy's teardown takes well under a second; once (a fresh clone's make test) a
         # tracking_node did not end within the demo's 10 s: a stalled teardown prints where it
         # stalls into the node's log after TEARDOWN_DUMP_S (and SIGUSR1 prints it at any time)
         faulthandler.dump_traceback_later(TEARDOWN_DUMP_S, exit=False)
