@@ -342,10 +342,6 @@ class RecordNode(Node):
         total = sum(self.counts.values())
         self.get_logger().info(f"{total} messages, {self.bytes / 1e6:.1f} MB on {len(self.conns)} topics")
 
-    def drain_count(self) -> int:
-        """Messages written so far (run_node's drain stops once a short spin adds none)."""
-        return sum(self.counts.values())
-
     def close(self) -> None:
         """Finish the bag (pending chunk, summary, metadata.yaml); safe to call twice."""
         if self._closed:

@@ -256,8 +256,8 @@ def run_node(make_node: Callable[..., Node], args=None, init_args=None, drain_s:
 
     SIGINT (Ctrl-C) and SIGTERM set a stop flag (rclpy's own handlers are not installed, so the
     context stays alive for the shutdown path); spin then ends within ~0.1 s. With drain_s > 0
-    the executor keeps taking whatever already arrived (callbacks still run) until a pass finds
-    nothing or drain_s is spent -- a recorder loses nothing that reached its process. Then the
+    the executor first runs whatever had already arrived (callbacks still run; `_drain`), at most
+    drain_s -- a recorder loses nothing that reached its process. Then the
     node's `close()` runs if it has one (flushing files), the node is destroyed and rclpy shut
     down. An external rclpy.shutdown() also ends spin quietly. A callback may raise NodeExit(code)
     to stop with that exit code. A ParamError while building the node (a bad parameter) prints
@@ -287,7 +287,7 @@ def run_node(make_node: Callable[..., Node], args=None, init_args=None, drain_s:
         while stop["signal"] is None and rclpy.ok():
             executor.spin_once(timeout_sec=0.1)
         if drain_s > 0 and rclpy.ok():
-            _drain(executor, drain_s, getattr(node, "drain_count", None))
+            _drain(executor, drain_s)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except NodeExit as exc:
@@ -319,6 +319,8 @@ def run_node(make_node: Callable[..., Node], args=None, init_args=None, drain_s:
 
 #: [s] a node's rclpy teardown taking longer than this prints every thread's stack (run_node)
 TEARDOWN_DUMP_S = 5.0
+#: [s] the drain's second marker is posted at least this long after its first (_drain)
+DRAIN_GAP_S = 0.1
 
 
 #: The executor of every node (run_node): "events" (default) or "single", from SOFTHAND_EXECUTOR.
@@ -342,23 +344,27 @@ def make_executor():
     return EventsExecutor()
 
 
-def _drain(executor, budget_s: float, count: Optional[Callable[[], int]] = None) -> None:
-    """Run what already arrived until a short wait brings nothing more, or the budget is spent.
+def _drain(executor, budget_s: float) -> None:
+    """Run what already arrived, within the budget.
 
-    The single-threaded executor says when a wait found nothing; the events executor does not, so
-    there `count()` (e.g. the recorder's messages written) must stay put across three short spins
-    (one spin may run a timer instead of a message); without `count` the whole budget is spun.
+    The single-threaded executor says when a wait found nothing. The events executor runs its work
+    in the order it arrived (one asio queue), so a task posted now runs after every message that
+    reached the process before it: the drain spins until such a marker has run, then posts a
+    second one at least DRAIN_GAP_S after the first (what DDS was still handing over at the stop).
+    Waiting instead for the messages written to stay put over a few spins never ended while the
+    recorded nodes kept publishing: every recorder stop spun its whole 2 s budget (3.7 s in all
+    to stop a recorder beside the running node set).
     """
     deadline = time.monotonic() + budget_s
     if not isinstance(executor, SingleThreadedExecutor):
-        last, still = None, 0
-        while time.monotonic() < deadline:
-            executor.spin_once(timeout_sec=0.05)
-            now = count() if count is not None else None
-            still = still + 1 if now is not None and now == last else 0
-            if still >= 3:
-                return
-            last = now
+        gap_end = time.monotonic() + DRAIN_GAP_S
+        for marker in range(2):
+            done = []
+            executor.create_task(lambda: done.append(True))
+            while not done and time.monotonic() < deadline:
+                executor.spin_once(timeout_sec=0.05)
+            while marker == 0 and time.monotonic() < min(gap_end, deadline):
+                executor.spin_once(timeout_sec=0.01)
         return
     while time.monotonic() < deadline:
         try:
