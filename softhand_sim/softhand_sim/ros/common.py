@@ -358,13 +358,10 @@ def _drain(executor, budget_s: float) -> None:
     deadline = time.monotonic() + budget_s
     if not isinstance(executor, SingleThreadedExecutor):
         gap_end = time.monotonic() + DRAIN_GAP_S
-        for marker in range(2):
-            done = []
-            executor.create_task(lambda: done.append(True))
-            while not done and time.monotonic() < deadline:
-                executor.spin_once(timeout_sec=0.05)
-            while marker == 0 and time.monotonic() < min(gap_end, deadline):
-                executor.spin_once(timeout_sec=0.01)
+        _spin_past_marker(executor, deadline)
+        while time.monotonic() < min(gap_end, deadline):
+            executor.spin_once(timeout_sec=0.01)
+        _spin_past_marker(executor, deadline)
         return
     while time.monotonic() < deadline:
         try:
@@ -374,6 +371,15 @@ def _drain(executor, budget_s: float) -> None:
         handler()
         if handler.exception() is not None:
             raise handler.exception()
+
+
+def _spin_past_marker(executor, deadline: float) -> None:
+    """Post a task to the events executor and spin until it has run (or the deadline): everything
+    queued before it has run too."""
+    done = []
+    executor.create_task(lambda: done.append(True))
+    while not done and time.monotonic() < deadline:
+        executor.spin_once(timeout_sec=0.05)
 
 
 class NodeExit(Exception):
