@@ -82,6 +82,7 @@ REPLAY_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000, reliability
                         durability=DurabilityPolicy.VOLATILE)
 END_LINGER_S = 0.5  # [s] after the last frame, before the publishers go away (best-effort readers)
 ACK_TIMEOUT_S = 10.0  # [s] at the end, wait this long at most for reliable subscribers' acknowledgements
+REPLAY_STARTED = "replay started"  # the log line of the first frame (tests wait for it)
 _MAX_SLEEP_S = 0.02  # sleep in slices so a shutdown (signal) is noticed quickly
 
 
@@ -458,6 +459,9 @@ class PlayNode(Node):
         t0 = int(self.stamps[0])
         wall0 = time.monotonic()
         stamp_of = self._stamp_map(t0, rate)
+        # the moment the first frame goes out (the waits for subscribers are over): what a user
+        # lines a run's other logs up with, and what the across-hosts test times its outage from
+        self.get_logger().info(f"{REPLAY_STARTED}: the first frame goes out now")
         loop = 0
         next_log = wall0 + 10.0
         while True:

@@ -38,6 +38,7 @@ from softhand_sim.commands.run_summary import summarize_run
 from softhand_sim.paths import bags_dir
 from softhand_sim.ros.env import isolated_env, pick_domain_id, release_domain_id
 from softhand_sim.ros.msgs import status_node
+from softhand_tracking.play_node import REPLAY_STARTED
 from tests.support import netns
 
 # timeout: the first test to run sets the hosts up and runs every phase (~3 min on 2 cores)
@@ -233,17 +234,17 @@ def udp_rtt(lan, a="headset", b="workstation", n=40):
         echo.wait()
 
 
-def wait_traffic(lan, host, frames_per_s, proc, timeout=60.0):
-    """Until `host` sends more than `frames_per_s` frames/s into the switch (over 0.25 s)."""
+def wait_replay_started(log_path, proc, timeout=60.0):
+    """Until play_node logs that its first frame goes out (its waits for subscribers are over).
+    Not the headset's traffic: the tracking node publishes its held target all along, so the
+    uplink is busy before the replay begins (an outage timed from it once came before the first
+    frame reached the workstation, and the hand held the previous phase's pose)."""
     deadline = time.monotonic() + timeout
-    last = lan.switch_stats()[host]["rx_frames"]
     while time.monotonic() < deadline and proc.poll() is None:
-        time.sleep(0.25)
-        now = lan.switch_stats()[host]["rx_frames"]
-        if now - last > 0.25 * frames_per_s:
+        if REPLAY_STARTED in Path(log_path).read_text(errors="replace"):
             return
-        last = now
-    raise AssertionError(f"{host} never sent {frames_per_s} frames/s")
+        time.sleep(0.02)
+    raise AssertionError(f"play_node never started its replay: {Path(log_path).read_text(errors='replace')[-2000:]}")
 
 
 def run_phase(hs, lan, out, name, bag_name, impairment):
@@ -263,9 +264,8 @@ def run_phase(hs, lan, out, name, bag_name, impairment):
                                                 "--wait-subscribers", "2"])
     outage = None
     if name == "outage":
-        # the first frame goes out once both tracker subscribers match: count from the moment the
-        # headset's uplink carries the tracked hand (tracker frames + intermediate bones, ~600 frames/s)
-        wait_traffic(lan, "headset", 150.0, play)
+        # the first frame goes out once both tracker subscribers match: count from then
+        wait_replay_started(hs.procs["headset"].log_dir / f"play_{name}.log", play)
         time.sleep(OUTAGE_AT)
         t_down = time.time()
         lan.link_down("workstation")
