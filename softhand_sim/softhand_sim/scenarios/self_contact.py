@@ -186,6 +186,21 @@ def skin_penetration(smodel, node_x, tets, triangles, surfaces=None):
     return surfaces.deepest(x)
 
 
+def uncaught_penetration(smodel, node_x, tets, triangles, contact_points, surfaces=None):
+    """Deepest [m] skin point inside another segment it may touch (as skin_penetration) that is
+    not among contact_points (the points of the self-contact system's contact list, its
+    output()["point"]): skin the method has not caught at this moment (0.0 when none). The rest
+    field decides which points are candidates, so skin that bulged out is caught late."""
+    from softhand_sim.physics.contact.penetration import SegmentSurfaces
+    from softhand_sim.physics.embedded import embedded_positions
+    surfaces = surfaces or SegmentSurfaces(smodel, triangles)
+    x = np.zeros((smodel.point_count, 3))
+    embedded_positions(node_x, tets, smodel.point_tet, smodel.point_bary, x)
+    points, depths, _nearest = surfaces.inside(x)
+    missed = depths[~np.isin(points, np.asarray(contact_points))]
+    return float(missed.max()) if len(missed) else 0.0
+
+
 def runtime_tip_pinch(self_contact: bool, tip_gap: float = 0.002, steps: int = 90, dt: float = 1.0 / 60.0):
     """sim_node's runtime (SimRuntime, the default hand, sim_node's parameters with
     `self_contact`) driven through its bone targets from the open hand above the table into a tip

@@ -14,6 +14,7 @@ crease). Points are tested against a segment only inside its current bounding bo
 
     surfaces = SegmentSurfaces(smodel, triangles)      # once: topology of each closed segment
     depth, point, segment, inside = surfaces.deepest(skin_x)   # skin_x (P,3) current skin points
+    points, depths, nearest = surfaces.inside(skin_x)          # every point inside, with its depth
 """
 from __future__ import annotations
 
@@ -127,9 +128,19 @@ class SegmentSurfaces:
     def deepest(self, x):
         """(depth [m], point, segment, inside count) of the deepest skin point inside another
         segment it may touch, for the current skin points x (P,3); depth 0.0 and point -1 when
-        none is inside. The depth of an inside point is its distance to the nearest skin of any
-        segment it may touch (not only the one it is inside: the fan caps of two neighbouring
-        segments of the other hand may overlap, while the skin they close is one surface)."""
+        none is inside (`inside` gives every such point)."""
+        points, depths, nearest = self.inside(x)
+        k = int(np.argmax(depths)) if len(points) else -1
+        if k < 0 or not depths[k] > 0.0:
+            return 0.0, -1, -1, len(points)
+        return float(depths[k]), int(points[k]), int(nearest[k]), len(points)
+
+    def inside(self, x):
+        """Every skin point inside another segment it may touch, for the current skin points x
+        (P,3): (points (K,), depth (K,) [m], nearest segment (K,)). The depth of an inside point is
+        its distance to the nearest skin of any segment it may touch (not only the one it is
+        inside: the fan caps of two neighbouring segments of the other hand may overlap, while the
+        skin they close is one surface)."""
         m = self.smodel
         x = np.ascontiguousarray(x, dtype=np.float64)
         surfaces = []  # per segment: (vertices now, closed triangles, skin triangle count, lo, hi)
@@ -155,8 +166,9 @@ class SegmentSurfaces:
                 hit = np.empty(len(cand), np.bool_)
                 _inside(x, cand, verts, closed, hit)
                 inside[cand[hit]] = True
-        best, best_p, best_s = 0.0, -1, -1
-        for p in np.flatnonzero(inside):
+        points = np.flatnonzero(inside)
+        depths, nearest = np.zeros(len(points)), np.full(len(points), -1, np.int64)
+        for i, p in enumerate(points):
             # the nearest allowed skin, segments in order of their boxes' distance
             gaps = [(float(np.linalg.norm(np.maximum(0.0, np.maximum(surf[3] - x[p], x[p] - surf[4])))), s)
                     for s, surf in enumerate(surfaces) if surf is not None and allowed[p, s]]
@@ -168,6 +180,5 @@ class SegmentSurfaces:
                 e2 = _distance2(x[p], verts, closed, n_skin, d2)
                 if e2 < d2:
                     d2, near = e2, s
-            if np.sqrt(d2) > best:
-                best, best_p, best_s = float(np.sqrt(d2)), int(p), near
-        return best, best_p, best_s, int(inside.sum())
+            depths[i], nearest[i] = np.sqrt(d2), near
+        return points, depths, nearest
