@@ -70,8 +70,8 @@ def draw_section(ax, skin, triangles, segment, plane, title):
 
 def draw(runs, out, tip_gap, view=(60.0, 10.0)):
     """Write the picture of `runs` {self_contact: (runtime, last step output)} to `out`; returns
-    its figures: pad contacts, force [N] and deepest point [mm] with self contact, and the
-    section's overlap [mm] without and with it."""
+    its figures: pad contacts, force [N], the thumb pad's contact area [mm^2] and deepest point
+    [mm] with self contact, and the section's overlap [mm] without and with it."""
     rt, last = runs[True]
     triangles = np.asarray(rt.asset.skin_triangles)
     segment = skin_segments(rt.asset)[0]
@@ -79,14 +79,19 @@ def draw(runs, out, tip_gap, view=(60.0, 10.0)):
     plane = section_plane(skin[True], triangles, segment, last.bone_poses)
     c = last.contacts
     pads = (c["objects"] == SKIN_OBJECT) & np.isin(c["bone"], [THUMB_DISTAL, INDEX_DISTAL])
-    force = float(np.linalg.norm(c["forces"][pads & (c["bone"] == THUMB_DISTAL)].sum(axis=0)))
+    on_thumb = pads & (c["bone"] == THUMB_DISTAL)
+    force = float(np.linalg.norm(c["forces"][on_thumb].sum(axis=0)))
+    # the patch: the skin area of the thumb pad's points in contact (each point carries half its
+    # vertex area, point_area, since every pair is tested both ways)
+    area_mm2 = 1e6 * 2.0 * float(rt.self_contact.system.model.point_area[c["point"][on_thumb]].sum())
     depth_mm = 1e3 * float(np.nanmax(c["depth"][pads])) if pads.any() else float("nan")
 
     fig, axes = plt.subplots(1, 3, figsize=(13.2, 4.2), dpi=100, gridspec_kw={"width_ratios": [1.3, 1, 1]})
     draw_scene(axes[0], skin[True], triangles, (), tuple(view))
     draw_joints(axes[0], c["points"][pads], tuple(view), rgb=MARK_RGB, size=4.0, marker=".", zorder=5)
-    axes[0].set_title(f"self contact on: {int(pads.sum())} pad contacts, net {force:.1f} N on the thumb pad,\n"
-                      f"deepest point {depth_mm:.2f} mm under the other pad", fontsize=9)
+    axes[0].set_title(f"self contact on: {int(pads.sum())} pad contacts, net {force:.2f} N on the thumb pad\n"
+                      f"over {area_mm2:.0f} mm\u00b2 of its skin, deepest point {depth_mm:.2f} mm under the other pad",
+                      fontsize=9)
     off = draw_section(axes[1], skin[False], triangles, segment, plane,
                        "self contact off: the pads pass into each other")
     on = draw_section(axes[2], skin[True], triangles, segment, plane, "self contact on: the pads meet and flatten")
@@ -99,7 +104,7 @@ def draw(runs, out, tip_gap, view=(60.0, 10.0)):
     fig.tight_layout(rect=(0, 0, 1, 0.93))
     fig.savefig(out)
     plt.close(fig)
-    return {"pad_contacts": int(pads.sum()), "force_n": force, "deepest_mm": depth_mm,
+    return {"pad_contacts": int(pads.sum()), "force_n": force, "area_mm2": area_mm2, "deepest_mm": depth_mm,
             "overlap_off_mm": float(off), "overlap_on_mm": float(on)}
 
 
@@ -114,7 +119,8 @@ def main(argv=None):
         parser.error(f"--tip-gap must be within 0..0.05 m, got {args.tip_gap}")
     runs = {on: runtime_tip_pinch(on, tip_gap=args.tip_gap) for on in (False, True)}
     f = draw(runs, args.out, args.tip_gap, args.view)
-    print(f"wrote {args.out}: pad contacts {f['pad_contacts']}, force {f['force_n']:.2f} N, deepest "
+    print(f"wrote {args.out}: pad contacts {f['pad_contacts']}, force {f['force_n']:.2f} N over "
+          f"{f['area_mm2']:.1f} mm^2 of the thumb pad, deepest "
           f"{f['deepest_mm']:.2f} mm; section overlap {f['overlap_off_mm']:.2f} mm off, {f['overlap_on_mm']:.2f} mm on")
     return 0
 

@@ -87,7 +87,7 @@ def test_object_contacts_name_their_bone():
 def test_self_pinch_picture_shows_the_pads_flatten(runs, tmp_path):
     """tools/self_pinch_picture.py (the README's picture) on this module's two pinches: cut through
     both pads, the outlines overlap over 2 mm without self contact and under 1 mm with it (measured
-    2.7 and 0.85 mm), and the picture is written."""
+    2.7 and 0.79 mm), the pads' contact area and force are reported, and the picture is written."""
     from tests.support.tools import load_tool
 
     tool = load_tool("self_pinch_picture")
@@ -95,6 +95,8 @@ def test_self_pinch_picture_shows_the_pads_flatten(runs, tmp_path):
     f = tool.draw({False: (rt_off, off), True: (rt, on)}, tmp_path / "pinch.png", tip_gap=0.002)
     assert f["overlap_off_mm"] > 2.0 and f["overlap_on_mm"] < 1.0, f
     assert f["pad_contacts"] >= 4 and f["deepest_mm"] <= 1.0, f
+    # the contact patch on the thumb pad (measured 23 mm^2 carrying 0.51 N): a few mm^2 to a pad's side
+    assert 5.0 <= f["area_mm2"] <= 100.0 and 0.05 <= f["force_n"], f
     assert (tmp_path / "pinch.png").stat().st_size > 20_000
 
 
