@@ -173,16 +173,22 @@ def run(solver, state, control, script, seconds, dt=1.0 / 60.0, on_step=None):
     return stats
 
 
-def skin_penetration(smodel, node_x, tets, triangles, surfaces=None):
-    """Deepest [m] skin point inside another segment it may touch, measured on the deformed skin
-    without the contact list (physics/contact/penetration.py: inside by the winding number of the
-    other segment's closed skin, depth = distance to the nearest skin it may touch). Returns
-    (depth, point, segment, points inside); surfaces: a SegmentSurfaces to reuse."""
+def _surfaces_and_points(smodel, node_x, tets, triangles, surfaces=None):
+    """(SegmentSurfaces, skin points (P,3) embedded in the current tets) for the measures below."""
     from softhand_sim.physics.contact.penetration import SegmentSurfaces
     from softhand_sim.physics.embedded import embedded_positions
     surfaces = surfaces or SegmentSurfaces(smodel, triangles)
     x = np.zeros((smodel.point_count, 3))
     embedded_positions(node_x, tets, smodel.point_tet, smodel.point_bary, x)
+    return surfaces, x
+
+
+def skin_penetration(smodel, node_x, tets, triangles, surfaces=None):
+    """Deepest [m] skin point inside another segment it may touch, measured on the deformed skin
+    without the contact list (physics/contact/penetration.py: inside by the winding number of the
+    other segment's closed skin, depth = distance to the nearest skin it may touch). Returns
+    (depth, point, segment, points inside); surfaces: a SegmentSurfaces to reuse."""
+    surfaces, x = _surfaces_and_points(smodel, node_x, tets, triangles, surfaces)
     return surfaces.deepest(x)
 
 
@@ -191,11 +197,7 @@ def uncaught_penetration(smodel, node_x, tets, triangles, contact_points, surfac
     not among contact_points (the points of the self-contact system's contact list, its
     output()["point"]): skin the method has not caught at this moment (0.0 when none). The rest
     field decides which points are candidates, so skin that bulged out is caught late."""
-    from softhand_sim.physics.contact.penetration import SegmentSurfaces
-    from softhand_sim.physics.embedded import embedded_positions
-    surfaces = surfaces or SegmentSurfaces(smodel, triangles)
-    x = np.zeros((smodel.point_count, 3))
-    embedded_positions(node_x, tets, smodel.point_tet, smodel.point_bary, x)
+    surfaces, x = _surfaces_and_points(smodel, node_x, tets, triangles, surfaces)
     points, depths, _nearest = surfaces.inside(x)
     missed = depths[~np.isin(points, np.asarray(contact_points))]
     return float(missed.max()) if len(missed) else 0.0
