@@ -181,7 +181,6 @@ def run(args):
     warmup = args.warmup if args.warmup is not None else max(60.0, 0.2 * duration)
     env = isolated_env()
     apply_isolated_env(env["ROS_DOMAIN_ID"])
-    env.setdefault("NUMBA_NUM_THREADS", "1")
     procs = ProcessSet(env, out / "logs")
     print(f"soak: {args.minutes:g} min of {bag.name} (looped), sample every {args.period:g} s, warm-up "
           f"{warmup:.0f} s, out {out} (ROS_DOMAIN_ID={env['ROS_DOMAIN_ID']})", flush=True)

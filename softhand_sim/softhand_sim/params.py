@@ -154,6 +154,11 @@ SIM = {
                               "(computed in as many slices, one per step)", 1, 100000),
     "factor_refresh_iterations": P(int, 8, "-", "factor preconditioner: refresh twice as fast after a CG that took "
                                    "more iterations than this", 0, 100000),
+    "solver_threads": P(int, 1, "-", "threads of the step with two hands: 2 runs the hands' tissue, "
+                        "factorization and triangular solves and the matrix products on two cores "
+                        "(physics/parallel.py; the same results to round-off; OpenMP threads spin briefly "
+                        "between the step's parallel parts); 1: one thread, leaving the other core to the "
+                        "tracking, world and recording nodes; one hand always runs on one thread", 1, 64),
     "scene_file": P(str, "", "-", "scene file (empty: config/scene.yaml)"),
     "copy_timeout": P(float, 0.5, "s", "an engine copy older than this decouples its object", positive=True),
     "target_feed_forward": P(bool, True, "-", "move each hand's bone targets to the end of the step with their "

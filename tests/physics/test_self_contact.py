@@ -69,7 +69,7 @@ def _hessian_operator(x, tets, args, slip, scale=1.0):
         e = np.zeros(n)
         e[j] = 1.0
         out = np.zeros(n)
-        pcg._matvec(indptr, indices, vals * scale, e, out, False, rows, nodes, weights, K)
+        pcg._matvec(indptr, indices, vals * scale, e, out, False, pcg.ONE_CHUNK, rows, nodes, weights, K)
         H[:, j] = out
     return H, rows
 

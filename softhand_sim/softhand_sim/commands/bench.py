@@ -11,7 +11,7 @@ update(k, t)); `grasp` is the thumb-index pinch of contact_scenarios (PinchScena
 contacts_median: active skin contacts per step; collision_ms: median object collision-detection
 time; self_contacts_median / self_collision_ms: the same for skin-skin contact (scenarios
 free_self: `free` with self contact on; fist: the tight fist of scenarios/self_contact.py).
-Timings: median and p99 of the whole step (wall clock, one thread: NUMBA_NUM_THREADS=1);
+Timings: median and p99 of the whole step (wall clock; one thread unless --threads);
 setup = rotations + assembly (+ the preconditioner's refactorization), solve = PCG + advance.
 
 --profile (issue #20) splits the step into the solver's stages (solver.STAGE_FIELDS: collision,
@@ -24,18 +24,18 @@ row gets `stages`: {name: {median_ms, p99_ms, share}}.
 side): `free` moves both, `press` loads both hands' pads, `grasp` is both palms pressing and
 lifting the scene's big box (scenarios/bimanual.TwoHandLift on the solver, the box's engine copy
 held at its scene pose: the world's resting box). `--hands 1,2` runs both counts.
+
+--threads 2 (with --hands 2): solver_threads 2, the two hands on the two cores (physics/parallel.py);
+the one-core figures are --threads 1, the default. `--threads 1,2` runs both, one after the other.
 """
 import argparse
 import json
-import os
 import sys
 import time
 
-os.environ.setdefault("NUMBA_NUM_THREADS", "1")
+import numpy as np
 
-import numpy as np  # noqa: E402
-
-from softhand_sim.scenarios.bench_scenes import fingertip_pad_nodes, flexed_pose  # noqa: E402
+from softhand_sim.scenarios.bench_scenes import fingertip_pad_nodes, flexed_pose
 
 PAPER_STEPS_PER_S = 55.0
 MESHES = ("coarse", "fine", "box")
@@ -303,7 +303,7 @@ def check_case(scenario, hands):
     return scenes
 
 
-def run(scenario, mesh, steps, preconditioner, hands=1, profile=False):
+def run(scenario, mesh, steps, preconditioner, hands=1, profile=False, threads=1):
     from softhand_sim.physics.model import build_model
     from softhand_sim.physics.solver import STAGE_FIELDS, Solver
     scenes = check_case(scenario, hands)
@@ -312,7 +312,7 @@ def run(scenario, mesh, steps, preconditioner, hands=1, profile=False):
         asset = [asset, _asset(mesh, "left")[0]]
     objects = getattr(scenes[scenario], "objects", None)  # scenarios may add rigid objects
     params = getattr(scenes[scenario], "params", dict)()   # ... and their own solver parameters
-    model = build_model(asset, {**params, "preconditioner": preconditioner},
+    model = build_model(asset, {**params, "preconditioner": preconditioner, "solver_threads": threads},
                         objects=objects(asset) if objects else ())
     t0 = time.perf_counter()
     contacts = getattr(scenes[scenario], "contacts", lambda model: None)  # ... and contact
@@ -346,7 +346,7 @@ def run(scenario, mesh, steps, preconditioner, hands=1, profile=False):
             stage_ms[name].append(getattr(st, f))
     ms = np.array(ms)
     row = {
-        "hands": hands, "mesh": mesh, "source": source, "tets": int(len(model.tets)), "dofs": int(model.dof_count),
+        "hands": hands, "threads": threads, "mesh": mesh, "source": source, "tets": int(len(model.tets)), "dofs": int(model.dof_count),
         "nnz": int(len(model.indices)), "scenario": scenario, "preconditioner": preconditioner,
         "steps": steps, "median_ms": float(np.median(ms)), "p99_ms": float(np.percentile(ms, 99)),
         "max_ms": float(ms.max()), "steps_per_s": float(1e3 / np.median(ms)),
@@ -363,7 +363,7 @@ def run(scenario, mesh, steps, preconditioner, hands=1, profile=False):
     return row
 
 
-COLUMNS = ["hands", "scenario", "mesh", "tets", "dofs", "preconditioner", "median_ms", "p99_ms",
+COLUMNS = ["hands", "threads", "scenario", "mesh", "tets", "dofs", "preconditioner", "median_ms", "p99_ms",
            "steps_per_s", "setup_ms", "solve_ms", "cg_iters_median", "cg_hit_cap", "refactors",
            "contacts_median", "collision_ms", "self_contacts_median", "self_collision_ms", "compile_s"]
 
@@ -384,7 +384,7 @@ def format_table(rows):
 def format_profile(row):
     """The --profile block of one row: median, p99 and share of the step per stage."""
     lines = [f"\nprofile: {row['scenario']}, {row['mesh']} ({row['tets']} tets), {row['hands']} hand(s), "
-             f"{row['preconditioner']}: step median {row['median_ms']:.3f} ms, p99 {row['p99_ms']:.3f} ms",
+             f"{row['preconditioner']}, {row['threads']} thread(s): step median {row['median_ms']:.3f} ms, p99 {row['p99_ms']:.3f} ms",
              f"{'stage':>15} {'median_ms':>10} {'p99_ms':>10} {'share':>7}"]
     for name, s in row["stages"].items():
         lines.append(f"{name:>15} {s['median_ms']:>10.3f} {s['p99_ms']:>10.3f} {100 * s['share']:>6.1f}%")
@@ -402,6 +402,10 @@ def main(argv=None):
     ap.add_argument("--hands", default="1",
                     help="hands in the model: 1, 2 or 1,2 (both counts); two hands run "
                          f"{', '.join(sorted(SCENARIOS_TWO_HANDS))}")
+    ap.add_argument("--threads", default="1",
+                    help="solver_threads: 1, 2 or 1,2 (both); 2 runs the two hands' tissue, "
+                         "factorization and solves on two cores (--hands 2 only; the default 1 is the "
+                         "one-core figure)")
     ap.add_argument("--profile", action="store_true",
                     help="split the step into its stages (median, p99, share of the step per stage)")
     ap.add_argument("--json", action="store_true")
@@ -413,13 +417,21 @@ def main(argv=None):
         counts = [int(h) for h in a.hands.split(",")]
     except ValueError:
         ap.error(f"--hands {a.hands!r}: expected 1, 2 or 1,2")
+    try:
+        threads = [int(t) for t in a.threads.split(",")]
+    except ValueError:
+        ap.error(f"--threads {a.threads!r}: expected 1, 2 or 1,2")
+    if any(t < 1 for t in threads):
+        ap.error(f"--threads {a.threads!r}: must be >= 1")
+    if max(threads) > 1 and counts != [2]:
+        ap.error(f"--threads {a.threads} needs --hands 2 (one hand runs on one thread)")
     scenarios = a.scenario or ["free", "press"]
     try:
         for h in counts:  # every case checked before the first one runs (a minute each)
             for s in scenarios:
                 check_case(s, h)
-        rows = [run(s, m, a.steps, p, h, a.profile) for h in counts for m in (a.mesh or ["coarse", "fine"])
-                for s in scenarios for p in precs]
+        rows = [run(s, m, a.steps, p, h, a.profile, t) for h in counts for m in (a.mesh or ["coarse", "fine"])
+                for s in scenarios for p in precs for t in threads]
     except ValueError as e:
         ap.error(str(e))
     print(json.dumps(rows, indent=1) if a.json else format_table(rows))

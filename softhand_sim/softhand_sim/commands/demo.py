@@ -191,7 +191,7 @@ def run_demo(bag, out_dir, rate=1.0, params_file=None, preview=True, startup_tim
     out_dir.mkdir(parents=True, exist_ok=True)
     env = isolated_env()
     apply_isolated_env(env["ROS_DOMAIN_ID"])  # this process watches the same (private) domain
-    env.setdefault("NUMBA_NUM_THREADS", "1")  # two cores, five processes: no thread oversubscription
+    # numba's default thread count (the cores): only solver_threads > 1 starts threads (in sim_node)
     sides = bag_sides(bag, legacy_side)
     say(f"softhand demo: bag {bag.name} ({' + '.join(sides)} hand{'s' if len(sides) > 1 else ''}) -> {out_dir} "
         f"(ROS_DOMAIN_ID={env['ROS_DOMAIN_ID']}, discovery LOCALHOST)")

@@ -239,6 +239,43 @@ def ldlt_numeric_rows(k0, k1, values, blk_slots, up_ptr, up_row, up_slot, row_pt
 
 
 @njit(cache=True)
+def forward_column(i, stop, Lp, Li, Lx, tmp):
+    """w_r -= L_ri w_i for column i's entries Lp[i]..stop (the forward pass of ldlt_solve)."""
+    o = 3 * i
+    w0, w1, w2 = tmp[o], tmp[o + 1], tmp[o + 2]
+    for p in range(Lp[i], stop):
+        c = 3 * Li[p]
+        tmp[c] -= Lx[p, 0, 0] * w0 + Lx[p, 0, 1] * w1 + Lx[p, 0, 2] * w2
+        tmp[c + 1] -= Lx[p, 1, 0] * w0 + Lx[p, 1, 1] * w1 + Lx[p, 1, 2] * w2
+        tmp[c + 2] -= Lx[p, 2, 0] * w0 + Lx[p, 2, 1] * w1 + Lx[p, 2, 2] * w2
+
+
+@njit(cache=True)
+def scale_by_dinv(i, Dinv, tmp):
+    """u_i = D_i⁻¹ w_i in place."""
+    o = 3 * i
+    w0, w1, w2 = tmp[o], tmp[o + 1], tmp[o + 2]
+    for a in range(3):
+        tmp[o + a] = Dinv[i, a, 0] * w0 + Dinv[i, a, 1] * w1 + Dinv[i, a, 2] * w2
+
+
+@njit(cache=True)
+def backward_column(i, Lp, Li, Lx, tmp):
+    """x_i = u_i - sum_r L_riᵀ x_r over column i (the backward pass of ldlt_solve)."""
+    o = 3 * i
+    u0, u1, u2 = tmp[o], tmp[o + 1], tmp[o + 2]
+    for p in range(Lp[i], Lp[i + 1]):
+        c = 3 * Li[p]
+        x0, x1, x2 = tmp[c], tmp[c + 1], tmp[c + 2]
+        u0 -= Lx[p, 0, 0] * x0 + Lx[p, 1, 0] * x1 + Lx[p, 2, 0] * x2
+        u1 -= Lx[p, 0, 1] * x0 + Lx[p, 1, 1] * x1 + Lx[p, 2, 1] * x2
+        u2 -= Lx[p, 0, 2] * x0 + Lx[p, 1, 2] * x1 + Lx[p, 2, 2] * x2
+    tmp[o] = u0
+    tmp[o + 1] = u1
+    tmp[o + 2] = u2
+
+
+@njit(cache=True)
 def ldlt_solve(Lp, Li, Lx, Dinv, perm, tmp, r, z):
     """z = A⁻¹ r with P A Pᵀ = L D Lᵀ in 3x3 blocks (L unit block-lower without its diagonal, by
     block columns: the forward pass scatters each finished block of w down its column, the
@@ -251,27 +288,10 @@ def ldlt_solve(Lp, Li, Lx, Dinv, perm, tmp, r, z):
         tmp[3 * k + 1] = r[o + 1]
         tmp[3 * k + 2] = r[o + 2]
     for i in range(nb):  # L w = P r, then u_i = D_i⁻¹ w_i as soon as w_i is final
-        o = 3 * i
-        w0, w1, w2 = tmp[o], tmp[o + 1], tmp[o + 2]
-        for p in range(Lp[i], Lp[i + 1]):  # w_r -= L_ri w_i
-            c = 3 * Li[p]
-            tmp[c] -= Lx[p, 0, 0] * w0 + Lx[p, 0, 1] * w1 + Lx[p, 0, 2] * w2
-            tmp[c + 1] -= Lx[p, 1, 0] * w0 + Lx[p, 1, 1] * w1 + Lx[p, 1, 2] * w2
-            tmp[c + 2] -= Lx[p, 2, 0] * w0 + Lx[p, 2, 1] * w1 + Lx[p, 2, 2] * w2
-        for a in range(3):
-            tmp[o + a] = Dinv[i, a, 0] * w0 + Dinv[i, a, 1] * w1 + Dinv[i, a, 2] * w2
+        forward_column(i, Lp[i + 1], Lp, Li, Lx, tmp)
+        scale_by_dinv(i, Dinv, tmp)
     for i in range(nb - 1, -1, -1):  # Lᵀ x = u: x_i = u_i - sum_r L_riᵀ x_r
-        o = 3 * i
-        u0, u1, u2 = tmp[o], tmp[o + 1], tmp[o + 2]
-        for p in range(Lp[i], Lp[i + 1]):
-            c = 3 * Li[p]
-            x0, x1, x2 = tmp[c], tmp[c + 1], tmp[c + 2]
-            u0 -= Lx[p, 0, 0] * x0 + Lx[p, 1, 0] * x1 + Lx[p, 2, 0] * x2
-            u1 -= Lx[p, 0, 1] * x0 + Lx[p, 1, 1] * x1 + Lx[p, 2, 1] * x2
-            u2 -= Lx[p, 0, 2] * x0 + Lx[p, 1, 2] * x1 + Lx[p, 2, 2] * x2
-        tmp[o] = u0
-        tmp[o + 1] = u1
-        tmp[o + 2] = u2
+        backward_column(i, Lp, Li, Lx, tmp)
     for k in range(nb):
         o = 3 * perm[k]
         z[o] = tmp[3 * k]
@@ -320,8 +340,12 @@ class Symbolic:
         self.row_flops *= 54  # one 3x3 block multiply-subtract = 27 multiply-adds
         self.flops = int(self.row_flops.sum())
 
-    def chunks(self, count):
-        """count + 1 row boundaries splitting the numeric factorization into equal-flop chunks."""
-        cum = np.cumsum(self.row_flops + 1)
-        cuts = np.searchsorted(cum, cum[-1] * np.arange(1, count) / count)
-        return np.unique(np.r_[0, cuts, self.nb]).astype(np.int64)
+    def chunks(self, count, lo=0, hi=None, keep_empty=False):
+        """Row boundaries splitting rows lo..hi-1 (all by default) of the numeric factorization
+        into count chunks of equal flops; empty chunks are dropped unless keep_empty (then there
+        are always count + 1 boundaries: one group's share of each of count slices)."""
+        hi = self.nb if hi is None else hi
+        cum = np.cumsum(self.row_flops[lo:hi] + 1)
+        cuts = lo + np.searchsorted(cum, cum[-1] * np.arange(1, count) / count)
+        bounds = np.r_[lo, cuts, hi].astype(np.int64)
+        return bounds if keep_empty else np.unique(bounds)

@@ -9,9 +9,10 @@ Preconditioners:
                         nodes, which only a factorization captures (Jacobi hits the iteration cap)
 """
 import numpy as np
-from numba import njit
+from numba import njit, prange
 
 from softhand_sim.physics.ldlt import ldlt_solve
+from softhand_sim.physics.parallel import factor_rows_by_group, ldlt_solve_by_group, shared_split
 
 PRECOND_JACOBI = 0
 PRECOND_BLOCK_JACOBI = 1
@@ -27,18 +28,28 @@ class Factor:
     in use is at most 2K steps old (K = 1: the factor of the current matrix, every step). The
     solver runs two slices per step after a CG that needed many iterations.
 
-    arrays: the tuple pcg() passes to ldlt_solve (the factor in use)."""
+    With threads > 1 and groups (one per hand), each slice factors every group's share of it
+    in parallel and the solves run the groups in parallel (parallel.py); the shared rows (the
+    objects) stay on one thread, at the end of the last slice and between the solves' passes.
 
-    def __init__(self, n, indptr=None, indices=None, slice_flops=None, max_slices=50, groups=None):
+    arrays: the tuple pcg() passes to the triangular solves (the factor in use; its last three
+    entries are empty on one thread)."""
+
+    def __init__(self, n, indptr=None, indices=None, slice_flops=None, max_slices=50, groups=None,
+                 threads=1):
         self.n = n
         self.valid = False
         self.sym = None
         e_i, e_f = np.zeros(1, np.int32), np.zeros((1, 3, 3))
         nb = n // 3
+        self._serial = (np.zeros(0, np.int64), np.zeros(0, np.int32), np.zeros(0))
         self.arrays = (np.zeros(nb + 1, np.int32), e_i, e_f, np.tile(np.eye(3), (nb, 1, 1)),
-                       np.arange(nb, dtype=np.int32), np.zeros(n))
+                       np.arange(nb, dtype=np.int32), np.zeros(n)) + self._serial
         self.slice_flops, self.max_slices = slice_flops, max_slices
         self.groups = groups  # block groups ordered apart (ldlt.grouped_order): one per hand
+        self.threads = int(threads)
+        if self.threads < 1:
+            raise ValueError(f"threads={threads}: must be >= 1")
         if indptr is not None:
             self.analyse(indptr, indices)
 
@@ -61,6 +72,15 @@ class Factor:
         self.slices = int(np.clip(want, 1, self.max_slices))
         self.bounds = sym.chunks(self.slices)
         self.slices = len(self.bounds) - 1
+        self.by_group = self.threads > 1 and self.groups is not None and len(self.groups) > 1
+        if self.by_group:
+            gb = np.cumsum([0] + [len(g) for g in self.groups]).astype(np.int64)
+            # slice s factors rows group_bounds[s, h]:group_bounds[s + 1, h] of every group h
+            self.group_bounds = np.stack([sym.chunks(self.slices, int(gb[h]), int(gb[h + 1]),
+                                                     keep_empty=True)
+                                          for h in range(len(gb) - 1)], axis=1)
+            self.shared_rows = int(gb[-1])
+            self._by_group = (gb, shared_split(sym.Lp, sym.Li, self.shared_rows), np.zeros(self.n))
         # a factorization spread over steps works on a snapshot of the values into the buffer the
         # solves do not use; one done within a step (one slice) needs neither: it reads the
         # values and writes the only buffer before the step's solve. Half the memory and no
@@ -80,9 +100,15 @@ class Factor:
         from softhand_sim.physics.ldlt import ldlt_numeric_rows
         sym = self.sym
         Lx, Dinv = self._buf[0] if len(self._buf) == 1 else self._buf[1 - self._active]
-        self.bad_pivots += ldlt_numeric_rows(
-            int(self.bounds[s]), int(self.bounds[s + 1]), values, sym.blk_slots, sym.up_ptr, sym.up_row,
-            sym.up_slot, sym.row_ptr, sym.row_col, sym.row_slot, sym.Lp, sym.Li, Lx, Dinv, self._y)
+        rows = (values, sym.blk_slots, sym.up_ptr, sym.up_row, sym.up_slot, sym.row_ptr, sym.row_col,
+                sym.row_slot, sym.Lp, sym.Li, Lx, Dinv, self._y)
+        if not self.by_group:
+            self.bad_pivots += ldlt_numeric_rows(int(self.bounds[s]), int(self.bounds[s + 1]), *rows)
+            return
+        gb = self.group_bounds
+        self.bad_pivots += factor_rows_by_group(gb[s], gb[s + 1], *rows)
+        if s == self.slices - 1 and self.shared_rows < sym.nb:
+            self.bad_pivots += ldlt_numeric_rows(self.shared_rows, sym.nb, *rows)
 
     def _source(self, values):
         """The values a new factorization reads: a snapshot when it spans several steps."""
@@ -96,7 +122,8 @@ class Factor:
             self._active = 1 - self._active
         Lx, Dinv = self._buf[self._active]
         sym = self.sym
-        self.arrays = (sym.Lp, sym.Li, Lx, Dinv, sym.perm, self._tmp)
+        self.arrays = (sym.Lp, sym.Li, Lx, Dinv, sym.perm, self._tmp) + (
+            self._by_group if self.by_group else self._serial)
         self.valid = True
 
     def refresh(self, indptr, indices, values):
@@ -153,8 +180,14 @@ def csr_matvec(indptr, indices, values, x, out):
 def csr_matvec3(indptr, indices, values, x, out):
     """out = A x for a pattern made of column triplets (triplet_pattern): one index read per
     triplet and three independent partial sums (a single running sum is latency-bound)."""
+    csr_matvec3_rows(indptr, indices, values, x, out, 0, indptr.shape[0] - 1)
+
+
+@njit(cache=True)
+def csr_matvec3_rows(indptr, indices, values, x, out, r0, r1):
+    """Rows r0..r1-1 of csr_matvec3."""
     one, two, three = _U(1), _U(2), _U(3)
-    for i in range(indptr.shape[0] - 1):
+    for i in range(r0, r1):
         a0 = 0.0
         a1 = 0.0
         a2 = 0.0
@@ -164,6 +197,13 @@ def csr_matvec3(indptr, indices, values, x, out):
             a1 += values[k + one] * x[c + one]
             a2 += values[k + two] * x[c + two]
         out[i] = (a0 + a1) + a2
+
+
+@njit(parallel=True, cache=True)
+def csr_matvec3_by_rows(indptr, indices, values, x, out, row0):
+    """csr_matvec3 with the rows row0[c]:row0[c+1] of each chunk c in parallel (solver_threads)."""
+    for c in prange(row0.shape[0] - 1):
+        csr_matvec3_rows(indptr, indices, values, x, out, row0[c], row0[c + 1])
 
 
 @njit(cache=True)
@@ -218,7 +258,10 @@ def build_block_jacobi(values, node_slots, body_slots, node_inv, body_inv):
 @njit(cache=True)
 def _apply_precond(kind, r, z, diag_inv, node_inv, body_inv, body_dof0, fac):
     if kind == PRECOND_FACTOR:
-        ldlt_solve(fac[0], fac[1], fac[2], fac[3], fac[4], fac[5], r, z)
+        if fac[6].shape[0] > 1:  # the hands' rows on the cores (Factor.threads)
+            ldlt_solve_by_group(fac[0], fac[1], fac[2], fac[3], fac[4], fac[5], r, z, fac[6], fac[7], fac[8])
+        else:
+            ldlt_solve(fac[0], fac[1], fac[2], fac[3], fac[4], fac[5], r, z)
         return
     if kind == PRECOND_JACOBI:
         for i in range(r.shape[0]):
@@ -238,12 +281,13 @@ def _apply_precond(kind, r, z, diag_inv, node_inv, body_inv, body_dof0, fac):
             z[o + i] = acc
 
 
+ONE_CHUNK = np.zeros(2, np.int64)  # row_chunks of a product on one thread
 NO_LOW_RANK = (0, np.zeros((0, 8), np.int32), np.zeros((0, 8)), np.zeros((0, 3, 3)))
 
 
 def pcg(indptr, indices, values, b, x, tol, max_iter, kind, diag_slot, node_slots, body_slots,
         body_dof0, diag_inv, node_inv, body_inv, r, z, p, Ap, fac, triplets=False, low_rank=NO_LOW_RANK,
-        energy_floor=0.0):
+        energy_floor=0.0, row_chunks=None):
     """Solve A x = b in place from the warm start x, A = the CSR matrix plus the low-rank term
     low_rank = (rows, nodes (C,8), weights (C,8), K (C,3,3)): sum over its first `rows` rows of
     L K L^T, L (3 x n) the row's weights on its nodes' 3 DOFs each (energies/self_contact.
@@ -253,11 +297,12 @@ def pcg(indptr, indices, values, b, x, tol, max_iter, kind, diag_slot, node_slot
     P <= A overestimates; A = M + dt^2 H >= M, so e^T M e <= energy_floor: with energy_floor =
     m v^2 the velocity error's mass-weighted RMS is below v), or after max_iter iterations.
     fac: Factor.arrays (used by PRECOND_FACTOR). triplets: the pattern is made of column triplets
-    (triplet_pattern; faster products). Returns (iterations, relative residual ||r||/||b||,
+    (triplet_pattern; faster products). row_chunks: row bounds of the product's chunks run in
+    parallel (parallel.row_chunks; solver_threads > 1, triplet patterns). Returns (iterations, relative residual ||r||/||b||,
     hit_cap)."""
     return _pcg(indptr, indices, values, b, x, tol, max_iter, kind, diag_slot, node_slots, body_slots,
-                body_dof0, diag_inv, node_inv, body_inv, r, z, p, Ap, fac, triplets, *low_rank,
-                float(energy_floor))
+                body_dof0, diag_inv, node_inv, body_inv, r, z, p, Ap, fac, triplets,
+                ONE_CHUNK if row_chunks is None else row_chunks, *low_rank, float(energy_floor))
 
 
 @njit(cache=True)
@@ -277,8 +322,10 @@ def _add_low_rank(rows, nodes, weights, K, x, out):
 
 
 @njit(cache=True)
-def _matvec(indptr, indices, values, x, out, triplets, rows, nodes, weights, K):
-    if triplets:
+def _matvec(indptr, indices, values, x, out, triplets, row0, rows, nodes, weights, K):
+    if triplets and row0.shape[0] > 2:
+        csr_matvec3_by_rows(indptr, indices, values, x, out, row0)
+    elif triplets:
         csr_matvec3(indptr, indices, values, x, out)
     else:
         csr_matvec(indptr, indices, values, x, out)
@@ -287,8 +334,24 @@ def _matvec(indptr, indices, values, x, out, triplets, rows, nodes, weights, K):
 
 
 @njit(cache=True)
+def _dot(a, b):
+    """a . b in a plain loop: numba's np.dot calls BLAS, whose own threads (OpenBLAS threads a
+    dot product of 10,000 entries and more: two fine hands) then fight the solver's threads and
+    the other nodes for the cores; measured 10-20 ms per PCG iteration with solver_threads 2."""
+    acc0 = 0.0
+    acc1 = 0.0
+    n = a.shape[0]
+    for i in range(0, n - 1, 2):
+        acc0 += a[i] * b[i]
+        acc1 += a[i + 1] * b[i + 1]
+    if n % 2:
+        acc0 += a[n - 1] * b[n - 1]
+    return acc0 + acc1
+
+
+@njit(cache=True)
 def _pcg(indptr, indices, values, b, x, tol, max_iter, kind, diag_slot, node_slots, body_slots,
-         body_dof0, diag_inv, node_inv, body_inv, r, z, p, Ap, fac, triplets, lr_rows, lr_nodes,
+         body_dof0, diag_inv, node_inv, body_inv, r, z, p, Ap, fac, triplets, row0, lr_rows, lr_nodes,
          lr_weights, lr_K, energy_floor):
     n = b.shape[0]
     if kind == PRECOND_JACOBI:
@@ -297,24 +360,24 @@ def _pcg(indptr, indices, values, b, x, tol, max_iter, kind, diag_slot, node_slo
             diag_inv[i] = 1.0 / d if d > 0.0 else 0.0
     elif kind == PRECOND_BLOCK_JACOBI:
         build_block_jacobi(values, node_slots, body_slots, node_inv, body_inv)
-    bnorm = np.sqrt(np.dot(b, b))
+    bnorm = np.sqrt(_dot(b, b))
     if bnorm == 0.0:
         bnorm = 1.0
-    _matvec(indptr, indices, values, x, Ap, triplets, lr_rows, lr_nodes, lr_weights, lr_K)
+    _matvec(indptr, indices, values, x, Ap, triplets, row0, lr_rows, lr_nodes, lr_weights, lr_K)
     for i in range(n):
         r[i] = b[i] - Ap[i]
-    rnorm = np.sqrt(np.dot(r, r))
+    rnorm = np.sqrt(_dot(r, r))
     if rnorm <= tol * bnorm:
         return 0, rnorm / bnorm, False
     _apply_precond(kind, r, z, diag_inv, node_inv, body_inv, body_dof0, fac)
     p[:] = z
-    rz = np.dot(r, z)
+    rz = _dot(r, z)
     if rz <= energy_floor:
         return 0, rnorm / bnorm, False
     it = 0
     while it < max_iter:
-        _matvec(indptr, indices, values, p, Ap, triplets, lr_rows, lr_nodes, lr_weights, lr_K)
-        pAp = np.dot(p, Ap)
+        _matvec(indptr, indices, values, p, Ap, triplets, row0, lr_rows, lr_nodes, lr_weights, lr_K)
+        pAp = _dot(p, Ap)
         if pAp <= 0.0:
             break
         alpha = rz / pAp
@@ -328,7 +391,7 @@ def _pcg(indptr, indices, values, b, x, tol, max_iter, kind, diag_slot, node_slo
         if rnorm <= tol * bnorm:
             return it, rnorm / bnorm, False
         _apply_precond(kind, r, z, diag_inv, node_inv, body_inv, body_dof0, fac)
-        rz_new = np.dot(r, z)
+        rz_new = _dot(r, z)
         if rz_new <= energy_floor:
             return it, rnorm / bnorm, False
         beta = rz_new / rz

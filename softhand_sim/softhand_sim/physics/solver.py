@@ -28,7 +28,7 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-from softhand_sim.physics import pcg as pcg_mod
+from softhand_sim.physics import parallel, pcg as pcg_mod
 from softhand_sim.physics.energies import bone_tissue, gravity, joints, rigid_coupling, tissue
 from softhand_sim.physics.embedded import embedded_positions
 from softhand_sim.physics.energies.inertia import finalize_system, kinetic_energy
@@ -127,8 +127,16 @@ class Solver:
         self.refactor_iters = int(p["factor_refresh_iterations"])
         if self.refactor_every < 1:
             raise ValueError(f"factor_refresh_steps={self.refactor_every}: must be >= 1")
+        self.threads = int(p.get("solver_threads", 1))
+        if self.threads > 1:
+            import numba
+            if self.threads > numba.config.NUMBA_NUM_THREADS:
+                raise ValueError(f"solver_threads={self.threads}: numba runs at most "
+                                 f"{numba.config.NUMBA_NUM_THREADS} threads in this process "
+                                 f"(NUMBA_NUM_THREADS, default the core count)")
+        groups = hand_block_groups(m)
         self.factor = (pcg_mod.Factor(model.dof_count, m.indptr, m.indices, max_slices=self.refactor_every,
-                                      groups=hand_block_groups(m))
+                                      groups=groups, threads=self.threads)
                        if self.precond == pcg_mod.PRECOND_FACTOR else pcg_mod.Factor(model.dof_count))
         self._last_iters = 0
         # PCG's absolute floor (pcg.pcg): e^T M e <= m_min v^2 bounds every node's velocity error
@@ -155,6 +163,12 @@ class Solver:
         self._triplets = pcg_mod.triplet_pattern(m.indptr, m.indices)
         self._fused_tissue = tissue.is_isotropic_K0(m.tet_K0, m.tet_Dm_inv, m.tet_volume, *self._lame)
         self._stress = bool(p["tissue_stress_stiffness"])  # H_rot: the tissue's rotation stiffness
+        # the hands on the cores (parallel.py): each hand's tets, and the products' rows in chunks
+        # (two hands or more; one hand runs on one thread whatever solver_threads says)
+        by_hand = self.threads > 1 and groups is not None
+        self._tet0 = np.asarray(m.hands.tet0, np.int64) if by_hand and self._fused_tissue else None
+        self._row_chunks = (parallel.row_chunks(m.indptr, self.threads) if by_hand and self._triplets
+                            else pcg_mod.ONE_CHUNK)
 
     # ---- the stages of the step
     def collide(self, state):
@@ -176,7 +190,12 @@ class Solver:
         g, vals, b0 = self.grad, self.values, m.body_dof0
         g[:] = 0.0
         vals[:] = 0.0
-        if self._fused_tissue:
+        if self._tet0 is not None:
+            e = parallel.tissue_by_hand(state.node_x, m.tets, m.tet_Dm_inv, m.tet_volume, self._lame[0],
+                                        self._lame[1], state.tet_q, int(p["polar_iterations"]),
+                                        float(p["nonlinear_k"]), float(p["nonlinear_w_max"]), g,
+                                        m.tet_slots, vals, self._stress, self._tet0)
+        elif self._fused_tissue:
             e = tissue.add_all_fused(state.node_x, m.tets, m.tet_Dm_inv, m.tet_volume, self._lame[0],
                                      self._lame[1], state.tet_q, int(p["polar_iterations"]),
                                      float(p["nonlinear_k"]), float(p["nonlinear_w_max"]), g,
@@ -234,7 +253,7 @@ class Solver:
             m.indptr, m.indices, self.values, self.rhs, state.v, self.cg_tol, self.cg_max_iter,
             self.precond, m.diag_slot, m.node_slots, m.body_slots, m.body_dof0, self._diag_inv,
             self._node_inv, self._body_inv, self._r, self._z, self._p, self._Ap, self.factor.arrays,
-            self._triplets, low_rank, self.cg_energy_floor)
+            self._triplets, low_rank, self.cg_energy_floor, self._row_chunks)
         t4 = clock()
         self._last_iters = iters
         _advance(state.node_x, state.v, state.body_x, state.body_q, state.body_pose,
