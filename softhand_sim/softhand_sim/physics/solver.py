@@ -127,7 +127,7 @@ class Solver:
         self.refactor_iters = int(p["factor_refresh_iterations"])
         if self.refactor_every < 1:
             raise ValueError(f"factor_refresh_steps={self.refactor_every}: must be >= 1")
-        self.threads = int(p.get("solver_threads", 1))
+        self.threads = int(p["solver_threads"])
         if self.threads > 1:
             import numba
             if self.threads > numba.config.NUMBA_NUM_THREADS:
