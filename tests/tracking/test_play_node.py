@@ -63,9 +63,10 @@ def test_replay_count_timing_and_clock(ros_env, tmp_path):
         proc = g.start(["softhand-play", str(tmp_path / "bag"), "--wait-for-nodes", "test_probe",
                         "--clock-rate", "200"])
         assert proc.wait(30) == 0, proc.output()
-        g.wait_until(lambda: len(joints) >= len(stamps), 5,
-                     f"all messages (got {len(joints)}: {[pose_array_to_numpy(m)[0, 0] for m in joints.msgs]})")
-        assert len(joints) == len(stamps)
+        # both subscriptions: the wall-clock one may take the last frame a moment after `joints`
+        g.wait_until(lambda: len(joints) >= len(stamps) and len(received_wall) >= len(stamps), 5,
+                     "all messages on both subscriptions")
+        assert len(joints) == len(stamps), [pose_array_to_numpy(m)[0, 0] for m in joints.msgs]
         got_index = [pose_array_to_numpy(m)[0, 0] for m in joints.msgs]
         assert got_index == list(range(len(stamps)))
         got = np.array([stamp_to_ns(m.header.stamp) for m in joints.msgs])
