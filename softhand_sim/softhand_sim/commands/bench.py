@@ -346,7 +346,8 @@ def run(scenario, mesh, steps, preconditioner, hands=1, profile=False, threads=1
             stage_ms[name].append(getattr(st, f))
     ms = np.array(ms)
     row = {
-        "hands": hands, "threads": threads, "mesh": mesh, "source": source, "tets": int(len(model.tets)), "dofs": int(model.dof_count),
+        "hands": hands, "threads": threads, "mesh": mesh, "source": source, "tets": int(len(model.tets)),
+        "dofs": int(model.dof_count),
         "nnz": int(len(model.indices)), "scenario": scenario, "preconditioner": preconditioner,
         "steps": steps, "median_ms": float(np.median(ms)), "p99_ms": float(np.percentile(ms, 99)),
         "max_ms": float(ms.max()), "steps_per_s": float(1e3 / np.median(ms)),
@@ -384,7 +385,8 @@ def format_table(rows):
 def format_profile(row):
     """The --profile block of one row: median, p99 and share of the step per stage."""
     lines = [f"\nprofile: {row['scenario']}, {row['mesh']} ({row['tets']} tets), {row['hands']} hand(s), "
-             f"{row['preconditioner']}, {row['threads']} thread(s): step median {row['median_ms']:.3f} ms, p99 {row['p99_ms']:.3f} ms",
+             f"{row['preconditioner']}, {row['threads']} thread(s): step median {row['median_ms']:.3f} ms, "
+             f"p99 {row['p99_ms']:.3f} ms",
              f"{'stage':>15} {'median_ms':>10} {'p99_ms':>10} {'share':>7}"]
     for name, s in row["stages"].items():
         lines.append(f"{name:>15} {s['median_ms']:>10.3f} {s['p99_ms']:>10.3f} {100 * s['share']:>6.1f}%")

@@ -259,7 +259,8 @@ def build_block_jacobi(values, node_slots, body_slots, node_inv, body_inv):
 def _apply_precond(kind, r, z, diag_inv, node_inv, body_inv, body_dof0, fac):
     if kind == PRECOND_FACTOR:
         if fac[6].shape[0] > 1:  # the hands' rows on the cores (Factor.threads)
-            ldlt_solve_by_group(fac[0], fac[1], fac[2], fac[3], fac[4], fac[5], r, z, fac[6], fac[7], fac[8])
+            ldlt_solve_by_group(fac[0], fac[1], fac[2], fac[3], fac[4], fac[5], r, z,
+                                fac[6], fac[7], fac[8])
         else:
             ldlt_solve(fac[0], fac[1], fac[2], fac[3], fac[4], fac[5], r, z)
         return
@@ -298,8 +299,8 @@ def pcg(indptr, indices, values, b, x, tol, max_iter, kind, diag_slot, node_slot
     m v^2 the velocity error's mass-weighted RMS is below v), or after max_iter iterations.
     fac: Factor.arrays (used by PRECOND_FACTOR). triplets: the pattern is made of column triplets
     (triplet_pattern; faster products). row_chunks: row bounds of the product's chunks run in
-    parallel (parallel.row_chunks; solver_threads > 1, triplet patterns). Returns (iterations, relative residual ||r||/||b||,
-    hit_cap)."""
+    parallel (parallel.row_chunks; solver_threads > 1, triplet patterns). Returns (iterations,
+    relative residual ||r||/||b||, hit_cap)."""
     return _pcg(indptr, indices, values, b, x, tol, max_iter, kind, diag_slot, node_slots, body_slots,
                 body_dof0, diag_inv, node_inv, body_inv, r, z, p, Ap, fac, triplets,
                 ONE_CHUNK if row_chunks is None else row_chunks, *low_rank, float(energy_floor))
