@@ -11,7 +11,7 @@ import sys
 SUBCOMMANDS = {
     "demo": ("softhand_sim.commands.demo", "replay a tracker bag through tracking, sim, world and record nodes; "
                                   "writes runs/<stamp>/ (bag, summary.json, preview)"),
-    "bench": ("softhand_sim.commands.bench", "solver benchmark (single thread): steps/s median and p99, setup/solve split"),
+    "bench": ("softhand_sim.commands.bench", "solver benchmark (one thread; --threads 2: two hands on two cores): steps/s, p99, stages"),
     "hand": ("softhand_sim.commands.hand", "build the parametric hand model and render it to a PNG"),
     "model": ("softhand_sim.commands.model_info", "`model info [--json] [--measures FILE]`: the hand model's "
                                                   "figures (skin, tets, quality, embedding, build time) as JSON"),
