@@ -153,7 +153,8 @@ SIM = {
     "factor_refresh_steps": P(int, 50, "-", "factor preconditioner: a new factorization at least every this many steps "
                               "(computed in as many slices, one per step)", 1, 100000),
     "factor_refresh_iterations": P(int, 8, "-", "factor preconditioner: refresh twice as fast after a CG that took "
-                                   "more iterations than this", 0, 100000),
+                                   "more iterations than this, and factor the next step's matrix whole after one "
+                                   "that took more than 4 times this", 0, 100000),
     "solver_threads": P(int, 1, "-", "threads of the step with two hands: 2 runs the hands' tissue, "
                         "factorization and triangular solves and the matrix products on two cores "
                         "(physics/parallel.py; the same results to round-off; OpenMP threads spin briefly "

@@ -179,3 +179,29 @@ def test_factor_of_object_rows_with_and_without_contact():
         ref = spsolve(_matrix(m, values).tocsc(), r)
         assert np.linalg.norm(z - ref) <= 1e-9 * np.linalg.norm(ref)
     assert f.bad_pivots == 0
+
+
+@pytest.mark.parametrize("last_iters, full", [(20, False), (40, True)])
+def test_a_cg_far_over_the_refresh_iterations_refactors_at_once(system, last_iters, full):
+    """A sliced factor (5 slices) after a CG of more than 4 x factor_refresh_iterations (8): the
+    next step factors its own matrix whole (a spike such as the first contact of both hands with
+    the big box, 50-59 iterations for 5 steps on a factor taken before it); after one of 9-32
+    iterations, two slices of the factorization in progress, as before."""
+    m, _ = system
+    s = Solver(m)
+    s.factor = pcg.Factor(m.dof_count, m.indptr, m.indices, slice_flops=1.0, max_slices=5)
+    assert s.factor.slices == 5
+    state, control = m.initial_state(), m.control()
+    state.v[:] = np.random.default_rng(5).normal(0.0, 0.05, m.dof_count)
+    s.step(state, control, 0.01)          # the first step factors whole (no factor yet)
+    s.step(state, control, 0.01)          # then one slice a step: the next factorization under way
+    assert s.factor._next == 1
+    s._last_iters = last_iters
+    stats = s.step(state, control, 0.01)
+    if full:
+        assert stats.refactored and s.factor._next == 0
+        fresh = pcg.Factor(m.dof_count, m.indptr, m.indices, slice_flops=1.0, max_slices=5)
+        fresh.refresh(m.indptr, m.indices, s.values)
+        np.testing.assert_array_equal(fresh.arrays[2], s.factor.arrays[2])
+    else:
+        assert not stats.refactored and s.factor._next == 3

@@ -26,7 +26,8 @@ class Factor:
     last slice is done the new factor replaces the one in use and the next snapshot is taken.
     Every step pays the same small cost (no refactorization spikes; p99 ~ median) and the factor
     in use is at most 2K steps old (K = 1: the factor of the current matrix, every step). The
-    solver runs two slices per step after a CG that needed many iterations.
+    solver runs two slices per step after a CG that needed many iterations, and a whole
+    factorization (refresh) after one that needed very many.
 
     With threads > 1 and groups (one per hand), each slice factors every group's share of it
     in parallel and the solves run the groups in parallel (parallel.py); the shared rows (the

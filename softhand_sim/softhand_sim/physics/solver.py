@@ -122,7 +122,8 @@ class Solver:
         self.precond = kinds[p["preconditioner"]]
         # factor preconditioner: symbolic analysis once here; numeric refresh spread over steps
         # (at most factor_refresh_steps slices; 2 slices per step after a CG with more than
-        # factor_refresh_iterations iterations)
+        # factor_refresh_iterations iterations, the whole factor of the step's own matrix after
+        # more than 4 times that: a spike costs more than a factorization)
         self.refactor_every = int(p["factor_refresh_steps"])
         self.refactor_iters = int(p["factor_refresh_iterations"])
         if self.refactor_every < 1:
@@ -242,7 +243,8 @@ class Solver:
         t2 = clock()
         refactored = False
         if self.precond == pcg_mod.PRECOND_FACTOR:
-            if not self.factor.valid:
+            if not self.factor.valid or (self.factor.slices > 1
+                                         and self._last_iters > 4 * self.refactor_iters):
                 self.factor.refresh(m.indptr, m.indices, self.values)
                 refactored = True
             else:
