@@ -109,3 +109,31 @@ def test_bench_threads_needs_two_hands(capsys):
     with pytest.raises(SystemExit):
         bench.main(["--threads", "2", "--hands", "1", "--scenario", "free", "--mesh", "coarse"])
     assert "needs --hands 2" in capsys.readouterr().err
+
+
+def test_two_threads_with_the_hands_pressed_palm_to_palm():
+    """sim_node's two-hand runtime with self contact, the palms pressed together (the skin-skin
+    contacts between the hands couple them outside the factor's pattern, in the CG's products):
+    1 and 2 threads step the same states, with the same CG iterations, through the press."""
+    from softhand_sim.params import load_params
+    from softhand_sim.runtime import SimRuntime
+    from softhand_sim.scenarios.bimanual import _table_top
+    from softhand_sim.scenarios.self_contact import PalmsPressed
+
+    runtimes = [SimRuntime(load_params("sim_node", overrides={
+        "hands": ["right", "left"], "self_contact": True, "solver_threads": threads})) for threads in (1, 2)]
+    assert runtimes[1].solver.factor.by_group
+    script = PalmsPressed([0.0, 0.0, _table_top(runtimes[0].scene) + 0.30])
+    dt = 1.0 / 60.0
+    between = 0
+    for k in range(int(script.T["approach1"] / dt) + 30):  # through the approach into the press
+        t = k * dt
+        stats = []
+        for rt in runtimes:
+            for side, poses in script.targets(t).items():
+                rt.set_bone_targets(poses, t, hand=side)
+            stats.append(rt.step(dt, t).stats)
+        assert stats[0].cg_iters == stats[1].cg_iters
+        assert np.abs(runtimes[0].state.node_x - runtimes[1].state.node_x).max() <= 1e-9
+        between = max(between, stats[1].self_contacts)
+    assert between >= 10
