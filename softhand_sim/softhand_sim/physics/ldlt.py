@@ -239,11 +239,32 @@ def ldlt_numeric_rows(k0, k1, values, blk_slots, up_ptr, up_row, up_slot, row_pt
 
 
 @njit(cache=True)
-def forward_column(i, stop, Lp, Li, Lx, tmp):
-    """w_r -= L_ri w_i for column i's entries Lp[i]..stop (the forward pass of ldlt_solve)."""
+def gather_rows(k0, k1, perm, r, tmp):
+    """tmp's block rows k0..k1-1 <- P r (the solves' permutation into the factor's order)."""
+    for k in range(k0, k1):
+        o = 3 * perm[k]
+        tmp[3 * k] = r[o]
+        tmp[3 * k + 1] = r[o + 1]
+        tmp[3 * k + 2] = r[o + 2]
+
+
+@njit(cache=True)
+def scatter_rows(k0, k1, perm, tmp, z):
+    """z <- Pᵀ tmp for tmp's block rows k0..k1-1 (back into the model's order)."""
+    for k in range(k0, k1):
+        o = 3 * perm[k]
+        z[o] = tmp[3 * k]
+        z[o + 1] = tmp[3 * k + 1]
+        z[o + 2] = tmp[3 * k + 2]
+
+
+@njit(cache=True)
+def forward_column(i, p0, p1, Li, Lx, w, tmp):
+    """w_r -= L_ri w_i for the entries p0..p1-1 of column i of L (the forward pass of
+    ldlt_solve), w_i read from w's block i (tmp itself, or a copy kept for later rows)."""
     o = 3 * i
-    w0, w1, w2 = tmp[o], tmp[o + 1], tmp[o + 2]
-    for p in range(Lp[i], stop):
+    w0, w1, w2 = w[o], w[o + 1], w[o + 2]
+    for p in range(p0, p1):
         c = 3 * Li[p]
         tmp[c] -= Lx[p, 0, 0] * w0 + Lx[p, 0, 1] * w1 + Lx[p, 0, 2] * w2
         tmp[c + 1] -= Lx[p, 1, 0] * w0 + Lx[p, 1, 1] * w1 + Lx[p, 1, 2] * w2
@@ -282,21 +303,13 @@ def ldlt_solve(Lp, Li, Lx, Dinv, perm, tmp, r, z):
     backward one gathers; one copy of L serves both, so each pass streams L once).
     tmp: (3 nb,) scratch."""
     nb = perm.shape[0]
-    for k in range(nb):
-        o = 3 * perm[k]
-        tmp[3 * k] = r[o]
-        tmp[3 * k + 1] = r[o + 1]
-        tmp[3 * k + 2] = r[o + 2]
+    gather_rows(0, nb, perm, r, tmp)
     for i in range(nb):  # L w = P r, then u_i = D_i⁻¹ w_i as soon as w_i is final
-        forward_column(i, Lp[i + 1], Lp, Li, Lx, tmp)
+        forward_column(i, Lp[i], Lp[i + 1], Li, Lx, tmp, tmp)
         scale_by_dinv(i, Dinv, tmp)
     for i in range(nb - 1, -1, -1):  # Lᵀ x = u: x_i = u_i - sum_r L_riᵀ x_r
         backward_column(i, Lp, Li, Lx, tmp)
-    for k in range(nb):
-        o = 3 * perm[k]
-        z[o] = tmp[3 * k]
-        z[o + 1] = tmp[3 * k + 1]
-        z[o + 2] = tmp[3 * k + 2]
+    scatter_rows(0, nb, perm, tmp, z)
 
 
 class Symbolic:

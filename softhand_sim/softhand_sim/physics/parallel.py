@@ -22,8 +22,8 @@ import numpy as np
 from numba import njit, prange
 
 from softhand_sim.physics.energies import tissue
-from softhand_sim.physics.ldlt import (backward_column, forward_column, ldlt_numeric_rows,
-                                       scale_by_dinv)
+from softhand_sim.physics.ldlt import (backward_column, forward_column, gather_rows, ldlt_numeric_rows,
+                                       scale_by_dinv, scatter_rows)
 
 
 @njit(parallel=True, cache=True)
@@ -63,48 +63,27 @@ def ldlt_solve_by_group(Lp, Li, Lx, Dinv, perm, tmp, r, z, gb, split, w):
     groups = gb.shape[0] - 1
     shared = gb[groups]
     for h in prange(groups):
-        for k in range(gb[h], gb[h + 1]):
-            o = 3 * perm[k]
-            tmp[3 * k] = r[o]
-            tmp[3 * k + 1] = r[o + 1]
-            tmp[3 * k + 2] = r[o + 2]
+        gather_rows(gb[h], gb[h + 1], perm, r, tmp)
         for i in range(gb[h], gb[h + 1]):
-            forward_column(i, split[i], Lp, Li, Lx, tmp)
+            forward_column(i, Lp[i], split[i], Li, Lx, tmp, tmp)
             if split[i] < Lp[i + 1]:
                 w[3 * i], w[3 * i + 1], w[3 * i + 2] = tmp[3 * i], tmp[3 * i + 1], tmp[3 * i + 2]
             scale_by_dinv(i, Dinv, tmp)
     if shared < nb:
-        for k in range(shared, nb):
-            o = 3 * perm[k]
-            tmp[3 * k] = r[o]
-            tmp[3 * k + 1] = r[o + 1]
-            tmp[3 * k + 2] = r[o + 2]
+        gather_rows(shared, nb, perm, r, tmp)
         for i in range(shared):  # the groups' columns into the shared rows
             if split[i] < Lp[i + 1]:
-                w0, w1, w2 = w[3 * i], w[3 * i + 1], w[3 * i + 2]
-                for p in range(split[i], Lp[i + 1]):
-                    c = 3 * Li[p]
-                    tmp[c] -= Lx[p, 0, 0] * w0 + Lx[p, 0, 1] * w1 + Lx[p, 0, 2] * w2
-                    tmp[c + 1] -= Lx[p, 1, 0] * w0 + Lx[p, 1, 1] * w1 + Lx[p, 1, 2] * w2
-                    tmp[c + 2] -= Lx[p, 2, 0] * w0 + Lx[p, 2, 1] * w1 + Lx[p, 2, 2] * w2
+                forward_column(i, split[i], Lp[i + 1], Li, Lx, w, tmp)
         for i in range(shared, nb):
-            forward_column(i, Lp[i + 1], Lp, Li, Lx, tmp)
+            forward_column(i, Lp[i], Lp[i + 1], Li, Lx, tmp, tmp)
             scale_by_dinv(i, Dinv, tmp)
         for i in range(nb - 1, shared - 1, -1):
             backward_column(i, Lp, Li, Lx, tmp)
-        for k in range(shared, nb):
-            o = 3 * perm[k]
-            z[o] = tmp[3 * k]
-            z[o + 1] = tmp[3 * k + 1]
-            z[o + 2] = tmp[3 * k + 2]
+        scatter_rows(shared, nb, perm, tmp, z)
     for h in prange(groups):
         for i in range(gb[h + 1] - 1, gb[h] - 1, -1):
             backward_column(i, Lp, Li, Lx, tmp)
-        for k in range(gb[h], gb[h + 1]):
-            o = 3 * perm[k]
-            z[o] = tmp[3 * k]
-            z[o + 1] = tmp[3 * k + 1]
-            z[o + 2] = tmp[3 * k + 2]
+        scatter_rows(gb[h], gb[h + 1], perm, tmp, z)
 
 
 def shared_split(Lp, Li, first_shared):
