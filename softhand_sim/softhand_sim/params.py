@@ -86,6 +86,9 @@ SIM = {
     "tissue_stress_stiffness": P(bool, True, "-", "add the rotation (stress) stiffness the co-rotational tissue Hessian "
                                  "leaves out, kept PSD (energies/tissue.py): stretched tissue stays stable with one "
                                  "Newton step per time step; off = the fixed-rotation Hessian of Eq. 10"),
+    "tissue_hessian_tolerance": P(float, 0.01, "rad", "keep a tet's tissue Hessian from the state it was last assembled "
+                                  "at until its rotation turns (or its stretch R^T F changes) by more than this; the "
+                                  "energy and gradient stay exact; 0 = every tet every step", 0.0, 0.5),
     "polar_iterations": P(int, 3, "-", "iterations per step of the warm-started polar decomposition giving each tet's rotation",
                           1, 100),
     "bone_tissue_k_total": P(float, 3.2e6, "N/m", f"bone-tissue total coupling stiffness k_total of Eq. 11 ({_PAPER}: 3.2e6)",

@@ -41,6 +41,21 @@ def tissue_by_hand(x, tets, Dm_inv, vol, lam, mu, tet_q, iterations, nl_k, nl_wm
 
 
 @njit(parallel=True, cache=True)
+def tissue_lazy_by_hand(x, tets, Dm_inv, vol, lam, mu, tet_q, iterations, nl_k, nl_wmax, grad, slots,
+                        values, stress_stiffness, tolerance, used_q, used_G, tet0):
+    """tissue.add_all_lazy on each hand's tets in parallel; returns (U [J], tets re-assembled)."""
+    hands = tet0.shape[0] - 1
+    energy = np.zeros(hands)
+    changed = np.zeros(hands, np.int64)
+    for h in prange(hands):
+        a, b = tet0[h], tet0[h + 1]
+        energy[h], changed[h] = tissue.add_all_lazy(
+            x, tets[a:b], Dm_inv[a:b], vol[a:b], lam, mu, tet_q[a:b], iterations, nl_k, nl_wmax,
+            grad, slots[a:b], values, stress_stiffness, tolerance, used_q[a:b], used_G[a:b])
+    return energy.sum(), changed.sum()
+
+
+@njit(parallel=True, cache=True)
 def factor_rows_by_group(lo, hi, values, blk_slots, up_ptr, up_row, up_slot, row_ptr, row_col,
                          row_slot, Lp, Li, Lx, Dinv, Y):
     """ldlt_numeric_rows(lo[h], hi[h]) for every group h in parallel (rows of different groups

@@ -37,6 +37,13 @@ from softhand_sim.physics.rotations import integrate_rotation, quat_to_matrix
 
 # The stages of Solver.step in order, as (name, StepStats field): the split `softhand bench
 # --profile` and sim_node's /diagnostics report.
+# tissue_hessian_tolerance: the share of tets that moved on in a step above which the next step
+# assembles the whole tissue term (measured break-even of add_all_lazy against the whole kernel,
+# coarse hand in free motion: 26 % re-assembled was faster, 44 % slower), and the most steps the
+# kept Hessian sums go without a whole assembly (their round-off)
+LAZY_WHOLE_SHARE = 0.3
+LAZY_WHOLE_STEPS = 1000
+
 STAGE_FIELDS = (("collision", "collision_ms"), ("self_collision", "self_collision_ms"),
                 ("assembly", "assembly_ms"), ("factor", "factor_ms"), ("pcg", "pcg_ms"),
                 ("advance", "advance_ms"))
@@ -164,6 +171,18 @@ class Solver:
         self._triplets = pcg_mod.triplet_pattern(m.indptr, m.indices)
         self._fused_tissue = tissue.is_isotropic_K0(m.tet_K0, m.tet_Dm_inv, m.tet_volume, *self._lame)
         self._stress = bool(p["tissue_stress_stiffness"])  # H_rot: the tissue's rotation stiffness
+        # tissue_hessian_tolerance: the tissue's Hessian kept per tet between steps (add_all_lazy)
+        self._lazy = float(p["tissue_hessian_tolerance"])
+        if self._lazy > 0.0 and not self._fused_tissue:
+            raise ValueError(f"tissue_hessian_tolerance={self._lazy}: needs the isotropic tissue of the "
+                             f"params (the fused kernel); this model's K0 is not")
+        if self._lazy > 0.0:
+            self._tissue_values = np.zeros(nnz)
+            self._used_q = np.zeros((len(m.tets), 4))
+            self._used_G = np.full((len(m.tets), 3, 3), np.nan)
+        self.tissue_updated = len(m.tets)  # tets whose Hessian the last step rebuilt (or would have)
+        self._lazy_steps = 0
+        self._kept_valid = False  # _tissue_values holds the kept Hessians' sum
         # the hands on the cores (parallel.py): each hand's tets, and the products' rows in chunks
         # (two hands or more; one hand runs on one thread whatever solver_threads says)
         by_hand = self.threads > 1 and groups is not None
@@ -180,6 +199,65 @@ class Solver:
             self.self_contacts.collide(state.node_x, state.body_x, state.body_q, state.v,
                                        self.model.body_dof0, state.tet_q)
 
+    def _tissue(self, state, vals):
+        """The tissue term into vals at every tet (each hand's tets on its own thread with
+        solver_threads > 1); returns its energy [J]."""
+        m, p = self.model, self.params
+        args = (int(p["polar_iterations"]), float(p["nonlinear_k"]), float(p["nonlinear_w_max"]),
+                self.grad)
+        if self._tet0 is not None:
+            return parallel.tissue_by_hand(state.node_x, m.tets, m.tet_Dm_inv, m.tet_volume,
+                                           self._lame[0], self._lame[1], state.tet_q, *args,
+                                           m.tet_slots, vals, self._stress, self._tet0)
+        if self._fused_tissue:
+            return tissue.add_all_fused(state.node_x, m.tets, m.tet_Dm_inv, m.tet_volume,
+                                        self._lame[0], self._lame[1], state.tet_q, *args,
+                                        m.tet_slots, vals, self._stress)
+        tissue.update_rotations(state.node_x, m.tets, m.tet_Dm_inv, state.tet_q, args[0])
+        e = tissue.add_all(state.node_x, m.node_rest, m.tets, m.tet_K0, m.tet_volume, state.tet_q,
+                           args[1], args[2], self.grad, m.tet_slots, vals)
+        if self._stress:  # the isotropic H_rot of the params' material
+            tissue.add_stress_hessian(state.node_x, m.tets, m.tet_Dm_inv, m.tet_volume, self._lame[0],
+                                      self._lame[1], state.tet_q, args[1], args[2], m.tet_slots, vals)
+        return e
+
+    def _lazy_tissue(self, state, vals):
+        """The tissue term into vals with tissue_hessian_tolerance: each tet's Hessian kept in
+        self._tissue_values until it moves on (tissue.add_all_lazy). While more than
+        LAZY_WHOLE_SHARE of the tets moved on in the last step (free motion) the whole kernel is
+        cheaper than rebuilding that many old Hessians to take them out: it writes vals directly,
+        as without the tolerance, and only the tets' rotations are kept; the step after the motion
+        settles assembles the kept sums anew, as does every LAZY_WHOLE_STEPS-th (their round-off).
+        Returns the energy [J]."""
+        m, p = self.model, self.params
+        tv, tol, T = self._tissue_values, self._lazy, len(m.tets)
+        moving = self.tissue_updated > LAZY_WHOLE_SHARE * T
+        if moving or not self._kept_valid or self._lazy_steps >= LAZY_WHOLE_STEPS:
+            into = vals if moving else tv
+            into[:] = 0.0
+            e = self._tissue(state, into)
+            if not moving:
+                vals[:] = tv
+            self._kept_valid = not moving
+            # while moving, the count of turned tets alone says when the motion settles; the step
+            # that starts keeping Hessians records their stretch too
+            self.tissue_updated = (tissue.rotation_update(state.tet_q, tol, self._used_q) if moving else
+                                   tissue.stretch_update(state.node_x, m.tets, m.tet_Dm_inv, state.tet_q,
+                                                         tol, self._used_q, self._used_G))
+            self._lazy_steps = 0
+            return e
+        self._lazy_steps += 1
+        args = (state.node_x, m.tets, m.tet_Dm_inv, m.tet_volume, self._lame[0], self._lame[1],
+                state.tet_q, int(p["polar_iterations"]), float(p["nonlinear_k"]),
+                float(p["nonlinear_w_max"]), self.grad, m.tet_slots, tv, self._stress, tol,
+                self._used_q, self._used_G)
+        if self._tet0 is not None:
+            e, self.tissue_updated = parallel.tissue_lazy_by_hand(*args, self._tet0)
+        else:
+            e, self.tissue_updated = tissue.add_all_lazy(*args)
+        vals[:] = tv
+        return e
+
     def assemble(self, state, control):
         """Stage 2: fill self.grad and self.values with dU/dq and H at state (rotations refreshed)
         for the inputs in control and the contacts of the last collide; returns U [J].
@@ -190,25 +268,11 @@ class Solver:
         m, p = self.model, self.params
         g, vals, b0 = self.grad, self.values, m.body_dof0
         g[:] = 0.0
-        vals[:] = 0.0
-        if self._tet0 is not None:
-            e = parallel.tissue_by_hand(state.node_x, m.tets, m.tet_Dm_inv, m.tet_volume, self._lame[0],
-                                        self._lame[1], state.tet_q, int(p["polar_iterations"]),
-                                        float(p["nonlinear_k"]), float(p["nonlinear_w_max"]), g,
-                                        m.tet_slots, vals, self._stress, self._tet0)
-        elif self._fused_tissue:
-            e = tissue.add_all_fused(state.node_x, m.tets, m.tet_Dm_inv, m.tet_volume, self._lame[0],
-                                     self._lame[1], state.tet_q, int(p["polar_iterations"]),
-                                     float(p["nonlinear_k"]), float(p["nonlinear_w_max"]), g,
-                                     m.tet_slots, vals, self._stress)
+        if self._lazy > 0.0:
+            e = self._lazy_tissue(state, vals)
         else:
-            tissue.update_rotations(state.node_x, m.tets, m.tet_Dm_inv, state.tet_q, int(p["polar_iterations"]))
-            e = tissue.add_all(state.node_x, m.node_rest, m.tets, m.tet_K0, m.tet_volume, state.tet_q,
-                               float(p["nonlinear_k"]), float(p["nonlinear_w_max"]), g, m.tet_slots, vals)
-            if self._stress:  # the isotropic H_rot of the params' material
-                tissue.add_stress_hessian(state.node_x, m.tets, m.tet_Dm_inv, m.tet_volume, self._lame[0],
-                                          self._lame[1], state.tet_q, float(p["nonlinear_k"]),
-                                          float(p["nonlinear_w_max"]), m.tet_slots, vals)
+            vals[:] = 0.0
+            e = self._tissue(state, vals)
         e += joints.add_all(state.body_x, state.body_q, m.joint_parent, m.joint_child,
                             m.joint_r_parent, m.joint_r_child, float(p["joint_stiffness"]),
                             m.joint_rest_rotation, m.jrow_joint, m.jrow_axis, m.jrow_lo, m.jrow_hi,
