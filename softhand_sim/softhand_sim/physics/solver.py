@@ -35,15 +35,15 @@ from softhand_sim.physics.energies.inertia import finalize_system, kinetic_energ
 from softhand_sim.physics.rotations import integrate_rotation, quat_to_matrix
 
 
-# The stages of Solver.step in order, as (name, StepStats field): the split `softhand bench
-# --profile` and sim_node's /diagnostics report.
 # tissue_hessian_tolerance: the share of tets that moved on in a step above which the next step
-# assembles the whole tissue term (measured break-even of add_all_lazy against the whole kernel,
-# coarse hand in free motion: 26 % re-assembled was faster, 44 % slower), and the most steps the
-# kept Hessian sums go without a whole assembly (their round-off)
-LAZY_WHOLE_SHARE = 0.3
+# runs the whole tissue kernel instead of keeping Hessians (the measured break-even, coarse hand:
+# the kernel keeping none 0.17 ms, every tet 0.37, the whole kernel 0.35), and the most steps
+# the kept Hessians' sums go without being assembled anew (their round-off)
+LAZY_WHOLE_SHARE = 0.85
 LAZY_WHOLE_STEPS = 1000
 
+# The stages of Solver.step in order, as (name, StepStats field): the split `softhand bench
+# --profile` and sim_node's /diagnostics report.
 STAGE_FIELDS = (("collision", "collision_ms"), ("self_collision", "self_collision_ms"),
                 ("assembly", "assembly_ms"), ("factor", "factor_ms"), ("pcg", "pcg_ms"),
                 ("advance", "advance_ms"))
@@ -171,15 +171,15 @@ class Solver:
         self._triplets = pcg_mod.triplet_pattern(m.indptr, m.indices)
         self._fused_tissue = tissue.is_isotropic_K0(m.tet_K0, m.tet_Dm_inv, m.tet_volume, *self._lame)
         self._stress = bool(p["tissue_stress_stiffness"])  # H_rot: the tissue's rotation stiffness
-        # tissue_hessian_tolerance: the tissue's Hessian kept per tet between steps (add_all_lazy)
+        # tissue_hessian_tolerance: the tissue's Hessian kept per tet between steps (_kept_tissue)
         self._lazy = float(p["tissue_hessian_tolerance"])
         if self._lazy > 0.0 and not self._fused_tissue:
             raise ValueError(f"tissue_hessian_tolerance={self._lazy}: needs the isotropic tissue of the "
                              f"params (the fused kernel); this model's K0 is not")
-        if self._lazy > 0.0:
-            self._tissue_values = np.zeros(nnz)
-            self._used_q = np.zeros((len(m.tets), 4))
-            self._used_G = np.full((len(m.tets), 3, 3), np.nan)
+        T = len(m.tets) if self._lazy > 0.0 else 0  # the kept Hessians (12 x 12 each) and states
+        self._tissue_values = np.zeros(nnz if T else 0)
+        self._used_q, self._used_G = np.zeros((T, 4)), np.full((T, 3, 3), np.nan)
+        self._kept_H = np.zeros((T, 12, 12))
         self.tissue_updated = len(m.tets)  # tets whose Hessian the last step rebuilt (or would have)
         self._lazy_steps = 0
         self._kept_valid = False  # _tissue_values holds the kept Hessians' sum
@@ -199,62 +199,47 @@ class Solver:
             self.self_contacts.collide(state.node_x, state.body_x, state.body_q, state.v,
                                        self.model.body_dof0, state.tet_q)
 
-    def _tissue(self, state, vals):
-        """The tissue term into vals at every tet (each hand's tets on its own thread with
-        solver_threads > 1); returns its energy [J]."""
+    def _tissue(self, state, vals, mode=tissue.WHOLE):
+        """The tissue term into vals (each hand's tets on its own thread with solver_threads > 1)
+        in one of tissue.assemble_tissue's modes; returns (energy [J], tets moved on)."""
         m, p = self.model, self.params
-        args = (int(p["polar_iterations"]), float(p["nonlinear_k"]), float(p["nonlinear_w_max"]),
-                self.grad)
-        if self._tet0 is not None:
-            return parallel.tissue_by_hand(state.node_x, m.tets, m.tet_Dm_inv, m.tet_volume,
-                                           self._lame[0], self._lame[1], state.tet_q, *args,
-                                           m.tet_slots, vals, self._stress, self._tet0)
-        if self._fused_tissue:
-            return tissue.add_all_fused(state.node_x, m.tets, m.tet_Dm_inv, m.tet_volume,
-                                        self._lame[0], self._lame[1], state.tet_q, *args,
-                                        m.tet_slots, vals, self._stress)
-        tissue.update_rotations(state.node_x, m.tets, m.tet_Dm_inv, state.tet_q, args[0])
-        e = tissue.add_all(state.node_x, m.node_rest, m.tets, m.tet_K0, m.tet_volume, state.tet_q,
-                           args[1], args[2], self.grad, m.tet_slots, vals)
-        if self._stress:  # the isotropic H_rot of the params' material
-            tissue.add_stress_hessian(state.node_x, m.tets, m.tet_Dm_inv, m.tet_volume, self._lame[0],
-                                      self._lame[1], state.tet_q, args[1], args[2], m.tet_slots, vals)
-        return e
-
-    def _lazy_tissue(self, state, vals):
-        """The tissue term into vals with tissue_hessian_tolerance: each tet's Hessian kept in
-        self._tissue_values until it moves on (tissue.add_all_lazy). While more than
-        LAZY_WHOLE_SHARE of the tets moved on in the last step (free motion) the whole kernel is
-        cheaper than rebuilding that many old Hessians to take them out: it writes vals directly,
-        as without the tolerance, and only the tets' rotations are kept; the step after the motion
-        settles assembles the kept sums anew, as does every LAZY_WHOLE_STEPS-th (their round-off).
-        Returns the energy [J]."""
-        m, p = self.model, self.params
-        tv, tol, T = self._tissue_values, self._lazy, len(m.tets)
-        moving = self.tissue_updated > LAZY_WHOLE_SHARE * T
-        if moving or not self._kept_valid or self._lazy_steps >= LAZY_WHOLE_STEPS:
-            into = vals if moving else tv
-            into[:] = 0.0
-            e = self._tissue(state, into)
-            if not moving:
-                vals[:] = tv
-            self._kept_valid = not moving
-            # while moving, the count of turned tets alone says when the motion settles; the step
-            # that starts keeping Hessians records their stretch too
-            self.tissue_updated = (tissue.rotation_update(state.tet_q, tol, self._used_q) if moving else
-                                   tissue.stretch_update(state.node_x, m.tets, m.tet_Dm_inv, state.tet_q,
-                                                         tol, self._used_q, self._used_G))
-            self._lazy_steps = 0
-            return e
-        self._lazy_steps += 1
         args = (state.node_x, m.tets, m.tet_Dm_inv, m.tet_volume, self._lame[0], self._lame[1],
                 state.tet_q, int(p["polar_iterations"]), float(p["nonlinear_k"]),
-                float(p["nonlinear_w_max"]), self.grad, m.tet_slots, tv, self._stress, tol,
-                self._used_q, self._used_G)
+                float(p["nonlinear_w_max"]), self.grad, m.tet_slots, vals, self._stress, mode,
+                self._lazy, self._used_q, self._used_G, self._kept_H)
         if self._tet0 is not None:
-            e, self.tissue_updated = parallel.tissue_lazy_by_hand(*args, self._tet0)
+            return parallel.tissue_by_hand(*args, self._tet0)
+        if self._fused_tissue:
+            return tissue.assemble_tissue(*args)
+        tissue.update_rotations(state.node_x, m.tets, m.tet_Dm_inv, state.tet_q, args[7])
+        e = tissue.add_all(state.node_x, m.node_rest, m.tets, m.tet_K0, m.tet_volume, state.tet_q,
+                           args[8], args[9], self.grad, m.tet_slots, vals)
+        if self._stress:  # the isotropic H_rot of the params' material
+            tissue.add_stress_hessian(state.node_x, m.tets, m.tet_Dm_inv, m.tet_volume, self._lame[0],
+                                      self._lame[1], state.tet_q, args[8], args[9], m.tet_slots, vals)
+        return e, 0
+
+    def _kept_tissue(self, state, vals):
+        """The tissue term into vals with tissue_hessian_tolerance: the kept Hessians' sums in
+        self._tissue_values, into which only the tets that moved on add their new Hessian less
+        their kept one (KEEP_MOVED). While more than LAZY_WHOLE_SHARE of the tets moved on in the
+        last step the whole kernel writes vals directly and only the rotations are compared; the
+        step after the motion settles keeps every tet anew (KEEP_ALL), as does every
+        LAZY_WHOLE_STEPS-th (the sums' round-off). Returns the energy [J]."""
+        tv, T = self._tissue_values, len(self.model.tets)
+        if self.tissue_updated > LAZY_WHOLE_SHARE * T:
+            vals[:] = 0.0
+            e, _ = self._tissue(state, vals)
+            self._kept_valid = False
+            self.tissue_updated = tissue.rotation_update(state.tet_q, self._lazy, self._used_q)
+            return e
+        if not self._kept_valid or self._lazy_steps >= LAZY_WHOLE_STEPS:
+            tv[:] = 0.0
+            e, self.tissue_updated = self._tissue(state, tv, tissue.KEEP_ALL)
+            self._kept_valid, self._lazy_steps = True, 0
         else:
-            e, self.tissue_updated = tissue.add_all_lazy(*args)
+            e, self.tissue_updated = self._tissue(state, tv, tissue.KEEP_MOVED)
+            self._lazy_steps += 1
         vals[:] = tv
         return e
 
@@ -269,10 +254,10 @@ class Solver:
         g, vals, b0 = self.grad, self.values, m.body_dof0
         g[:] = 0.0
         if self._lazy > 0.0:
-            e = self._lazy_tissue(state, vals)
+            e = self._kept_tissue(state, vals)
         else:
             vals[:] = 0.0
-            e = self._tissue(state, vals)
+            e, _ = self._tissue(state, vals)
         e += joints.add_all(state.body_x, state.body_q, m.joint_parent, m.joint_child,
                             m.joint_r_parent, m.joint_r_child, float(p["joint_stiffness"]),
                             m.joint_rest_rotation, m.jrow_joint, m.jrow_axis, m.jrow_lo, m.jrow_hi,

@@ -27,7 +27,7 @@ Rotations are kept per tet as quaternions tet_q (T,4) [x,y,z,w], warm-started ea
 (`update_rotations`, Mueller et al. 2016), so the decomposition costs a few flops per tet.
 """
 import numpy as np
-from numba import njit
+from numba import literally, njit
 
 from softhand_sim.physics.rotations import (polar_rotation_update, polar_update_scalars,
                                             quat_matrix_entries, quat_to_matrix)
@@ -533,147 +533,10 @@ def is_isotropic_K0(K0, Dm_inv, vol, lam, mu, rtol=1e-9):
     return bool(np.abs(K - K0).max() <= rtol * np.abs(K0).max())
 
 
-@njit(cache=True, inline="always")
-def _deformation(e, x, tets, Dm_inv, gr, F):
-    """gr (4,3) <- grad N_a of tet e [1/m]; F (3,3) <- its deformation gradient Ds Dm^-1."""
-    i0, i1, i2, i3 = tets[e, 0], tets[e, 1], tets[e, 2], tets[e, 3]
-    for k in range(3):
-        for c in range(3):
-            gr[k + 1, c] = Dm_inv[e, k, c]
-    for c in range(3):
-        gr[0, c] = -(gr[1, c] + gr[2, c] + gr[3, c])
-    for r in range(3):
-        d0, d1, d2 = x[i1, r] - x[i0, r], x[i2, r] - x[i0, r], x[i3, r] - x[i0, r]
-        for c in range(3):
-            F[r, c] = d0 * gr[1, c] + d1 * gr[2, c] + d2 * gr[3, c]
-
-
-@njit(cache=True, inline="always")
-def _element_forces(qx, qy, qz, qw, F, G, gr, V, lam, mu, nl_k, nl_wmax, f):
-    """At rotation q and deformation F: G <- R^T F, f (4,3) <- R sigma V grad N_a
-    (the nodal forces before the Eq. 9 scale); returns (energy [J], W [J/m^3], the Eq. 9 scale s,
-    the Eq. 10 factor k/(Wmax^2 V), 0 below Wmax)."""
-    R00, R01, R02, R10, R11, R12, R20, R21, R22 = quat_matrix_entries(qx, qy, qz, qw)
-    for c in range(3):  # G = R^T F, eps = sym(G) - I, sigma = lam tr(eps) I + 2 mu eps
-        f0, f1, f2 = F[0, c], F[1, c], F[2, c]
-        G[0, c] = R00 * f0 + R10 * f1 + R20 * f2
-        G[1, c] = R01 * f0 + R11 * f1 + R21 * f2
-        G[2, c] = R02 * f0 + R12 * f1 + R22 * f2
-    e00, e11, e22 = G[0, 0] - 1.0, G[1, 1] - 1.0, G[2, 2] - 1.0
-    e01 = 0.5 * (G[0, 1] + G[1, 0])
-    e02 = 0.5 * (G[0, 2] + G[2, 0])
-    e12 = 0.5 * (G[1, 2] + G[2, 1])
-    ltr = lam * (e00 + e11 + e22)
-    s00, s11, s22 = ltr + 2.0 * mu * e00, ltr + 2.0 * mu * e11, ltr + 2.0 * mu * e22
-    s01, s02, s12 = 2.0 * mu * e01, 2.0 * mu * e02, 2.0 * mu * e12
-    W = 0.5 * (s00 * e00 + s11 * e11 + s22 * e22) + s01 * e01 + s02 * e02 + s12 * e12
-    energy = V * W
-    # P = V R sigma; f_a = P g_a
-    P00 = V * (R00 * s00 + R01 * s01 + R02 * s02)
-    P01 = V * (R00 * s01 + R01 * s11 + R02 * s12)
-    P02 = V * (R00 * s02 + R01 * s12 + R02 * s22)
-    P10 = V * (R10 * s00 + R11 * s01 + R12 * s02)
-    P11 = V * (R10 * s01 + R11 * s11 + R12 * s12)
-    P12 = V * (R10 * s02 + R11 * s12 + R12 * s22)
-    P20 = V * (R20 * s00 + R21 * s01 + R22 * s02)
-    P21 = V * (R20 * s01 + R21 * s11 + R22 * s12)
-    P22 = V * (R20 * s02 + R21 * s12 + R22 * s22)
-    for a in range(4):
-        g0, g1, g2 = gr[a, 0], gr[a, 1], gr[a, 2]
-        f[a, 0] = P00 * g0 + P01 * g1 + P02 * g2
-        f[a, 1] = P10 * g0 + P11 * g1 + P12 * g2
-        f[a, 2] = P20 * g0 + P21 * g1 + P22 * g2
-    scale = 1.0
-    c_over = 0.0
-    if nl_k > 0.0 and W > nl_wmax:
-        r = W / nl_wmax - 1.0
-        energy += V * 0.5 * nl_k * r * r
-        scale = 1.0 + nl_k / nl_wmax * r
-        c_over = nl_k / (nl_wmax * nl_wmax * V)
-    return energy, W, scale, c_over
-
-
-@njit(cache=True, inline="always")
-def _add_rotation_stiffness(R00, R01, R02, R10, R11, R12, R20, R21, R22, G, scale, V, lam, mu, h, Qt,
-                            QRt, Qr, Ax, scratch, Hl):
-    """Hl += H_rot of a tet (module docstring) at rotation R, stretch G, h = R grad N_a."""
-    if twist_matrix(G, lam, mu, Qt, scratch) == 0:
-        return
-    # H_rot's block (a, b) = V/4 [h_a]x Q' [h_b]x^T with Q' = R Q R^T (twist_matrix):
-    # row i of [h_a]x Q' is h_a x (column i of Q'), row i of A [k]x^T is k x (row i of A)
-    for r in range(3):
-        t0 = Qt[r, 0] * R00 + Qt[r, 1] * R01 + Qt[r, 2] * R02   # (Q R^T)[r, 0]
-        t1 = Qt[r, 0] * R10 + Qt[r, 1] * R11 + Qt[r, 2] * R12
-        t2 = Qt[r, 0] * R20 + Qt[r, 1] * R21 + Qt[r, 2] * R22
-        QRt[r, 0], QRt[r, 1], QRt[r, 2] = t0, t1, t2
-    for c in range(3):
-        Qr[0, c] = R00 * QRt[0, c] + R01 * QRt[1, c] + R02 * QRt[2, c]
-        Qr[1, c] = R10 * QRt[0, c] + R11 * QRt[1, c] + R12 * QRt[2, c]
-        Qr[2, c] = R20 * QRt[0, c] + R21 * QRt[1, c] + R22 * QRt[2, c]
-    cs = 0.25 * scale * V
-    for a in range(4):
-        h0, h1, h2 = h[a, 0], h[a, 1], h[a, 2]
-        for c in range(3):  # A_a = cs [h_a]x Q' (Q' symmetric: column c = row c)
-            q0, q1, q2 = Qr[0, c], Qr[1, c], Qr[2, c]
-            Ax[a, 0, c] = cs * (h1 * q2 - h2 * q1)
-            Ax[a, 1, c] = cs * (h2 * q0 - h0 * q2)
-            Ax[a, 2, c] = cs * (h0 * q1 - h1 * q0)
-    for a in range(4):
-        for b in range(a, 4):
-            k0, k1, k2 = h[b, 0], h[b, 1], h[b, 2]
-            for i in range(3):
-                a0, a1, a2 = Ax[a, i, 0], Ax[a, i, 1], Ax[a, i, 2]
-                v0 = k1 * a2 - k2 * a1
-                v1 = k2 * a0 - k0 * a2
-                v2 = k0 * a1 - k1 * a0
-                Hl[3 * a + i, 3 * b] += v0
-                Hl[3 * a + i, 3 * b + 1] += v1
-                Hl[3 * a + i, 3 * b + 2] += v2
-                if a != b:
-                    Hl[3 * b, 3 * a + i] += v0
-                    Hl[3 * b + 1, 3 * a + i] += v1
-                    Hl[3 * b + 2, 3 * a + i] += v2
-
-
-@njit(cache=True, inline="always")
-def _element_hessian(R00, R01, R02, R10, R11, R12, R20, R21, R22, gr, G, f, scale, c_over, V, lam,
-                     mu, stress_stiffness, h, gg, Qt, QRt, Qr, Ax, scratch, Hl):
-    """Hl (12,12) <- a tet's Eq. 10 Hessian at rotation R, stretch G = R^T F and forces f
-    (_element_forces), with H_rot when stress_stiffness; h, gg scratch."""
-    for a in range(4):
-        g0, g1, g2 = gr[a, 0], gr[a, 1], gr[a, 2]
-        h[a, 0] = R00 * g0 + R01 * g1 + R02 * g2
-        h[a, 1] = R10 * g0 + R11 * g1 + R12 * g2
-        h[a, 2] = R20 * g0 + R21 * g1 + R22 * g2
-    for a in range(4):
-        for b in range(a, 4):
-            gg[a, b] = gr[a, 0] * gr[b, 0] + gr[a, 1] * gr[b, 1] + gr[a, 2] * gr[b, 2]
-    sl = scale * lam * V
-    sm = scale * mu * V
-    for a in range(4):
-        for b in range(a, 4):
-            dg = sm * gg[a, b]
-            for i in range(3):
-                hai = h[a, i]
-                hbi = h[b, i]
-                fai = c_over * f[a, i]
-                for j in range(3):
-                    v = sl * hai * h[b, j] + sm * h[a, j] * hbi + fai * f[b, j]
-                    if i == j:
-                        v += dg
-                    Hl[3 * a + i, 3 * b + j] = v
-                    Hl[3 * b + j, 3 * a + i] = v
-    if stress_stiffness:
-        _add_rotation_stiffness(R00, R01, R02, R10, R11, R12, R20, R21, R22, G, scale, V, lam, mu, h, Qt,
-                                QRt, Qr, Ax, scratch, Hl)
-
-
-@njit(cache=True, inline="always")
-def _add_gradient(e, tets, scale, f, grad):
-    for a in range(4):
-        na = 3 * tets[e, a]
-        for i in range(3):
-            grad[na + i] += scale * f[a, i]
+# assemble_tissue's modes: every tet into values (WHOLE); every tet into values, each one's Hessian
+# and state kept (KEEP_ALL); only the tets that moved on past the tolerance, as the difference of
+# their new and kept Hessians (KEEP_MOVED)
+WHOLE, KEEP_ALL, KEEP_MOVED = 0, 1, 2
 
 
 @njit(cache=True)
@@ -682,12 +545,46 @@ def add_all_fused(x, tets, Dm_inv, vol, lam, mu, tet_q, iterations, nl_k, nl_wma
     """update_rotations + add_all in one pass for an isotropic material (lam, mu [Pa]; K0 not
     read): refreshes tet_q, returns the energy [J] (Eq. 7-8), adds the gradient (Eq. 9) into grad
     and the Hessian (Eq. 10) into CSR values through slots (T,12,12); with stress_stiffness also
-    H_rot (= add_all + add_stress_hessian).
+    H_rot (= add_all + add_stress_hessian)."""
+    return _tissue_kernel(x, tets, Dm_inv, vol, lam, mu, tet_q, iterations, nl_k, nl_wmax, grad,
+                          slots, values, stress_stiffness, WHOLE, 0.0, np.zeros((0, 4)),
+                          np.zeros((0, 3, 3)), np.zeros((0, 12, 12)))[0]
 
-    Its element Hessian is the code of _element_hessian / _add_rotation_stiffness written out
-    again: called from here (numba's inlining), those helpers made this kernel 12-22 % slower
-    (coarse hand 0.22 -> 0.24-0.28 ms), measured; add_all_lazy, which rebuilds two Hessians of a
-    few tets, uses them."""
+
+@njit(cache=True)
+def assemble_tissue(x, tets, Dm_inv, vol, lam, mu, tet_q, iterations, nl_k, nl_wmax, grad, slots,
+                    values, stress_stiffness, mode, tolerance, used_q, used_G, kept_H):
+    """_tissue_kernel in `mode` given at run time (WHOLE, KEEP_ALL, KEEP_MOVED): each mode is its
+    own machine code (a compile-time mode; requested from Python, numba.literally re-dispatches
+    every call, ~0.2 s)."""
+    if mode == WHOLE:
+        return _tissue_kernel(x, tets, Dm_inv, vol, lam, mu, tet_q, iterations, nl_k, nl_wmax, grad,
+                              slots, values, stress_stiffness, WHOLE, tolerance, used_q, used_G, kept_H)
+    if mode == KEEP_ALL:
+        return _tissue_kernel(x, tets, Dm_inv, vol, lam, mu, tet_q, iterations, nl_k, nl_wmax, grad,
+                              slots, values, stress_stiffness, KEEP_ALL, tolerance, used_q, used_G,
+                              kept_H)
+    return _tissue_kernel(x, tets, Dm_inv, vol, lam, mu, tet_q, iterations, nl_k, nl_wmax, grad,
+                          slots, values, stress_stiffness, KEEP_MOVED, tolerance, used_q, used_G, kept_H)
+
+
+@njit(cache=True)
+def _tissue_kernel(x, tets, Dm_inv, vol, lam, mu, tet_q, iterations, nl_k, nl_wmax, grad, slots,
+                   values, stress_stiffness, mode, tolerance, used_q, used_G, kept_H):
+    """add_all_fused's term, with each tet's Hessian kept between calls (params
+    tissue_hessian_tolerance). A tet's Hessian depends only on its rotation R and stretch
+    G = R^T F: used_q, used_G (T,4), (T,3,3) hold those it was last assembled at (used_G[e, 0, 0]
+    NaN: never), kept_H (T,12,12) the Hessian itself. mode WHOLE: as add_all_fused (the arrays
+    not read); KEEP_ALL: every tet into values and kept; KEEP_MOVED: values holds the kept sums
+    from earlier calls and only a tet whose rotation turned, or an entry of whose stretch changed,
+    by more than `tolerance` [rad] adds its new Hessian less its kept one. The energy and the
+    gradient are exact at every tet in every mode. Returns (energy [J], the tets that had moved
+    on past the tolerance: re-assembled in KEEP_MOVED, counted in KEEP_ALL).
+
+    mode is compiled in (numba.literally: one machine code per mode; assemble_tissue chooses):
+    as a run-time value its branches made the WHOLE kernel 20-30 % slower than the kernel
+    without them (measured)."""
+    literally(mode)
     F = np.empty((3, 3))
     D = np.empty((3, 3))
     gr = np.empty((4, 3))   # grad N_a [1/m]
@@ -701,6 +598,8 @@ def add_all_fused(x, tets, Dm_inv, vol, lam, mu, tet_q, iterations, nl_k, nl_wma
     scratch = np.empty((7, 3))
     Hl = np.empty((12, 12))  # the element Hessian before its scatter
     e_sum = 0.0
+    cos_half = np.cos(0.5 * tolerance)  # |q . u| below this: turned by more than the tolerance
+    moved = 0
     for e in range(tets.shape[0]):
         i0, i1, i2, i3 = tets[e, 0], tets[e, 1], tets[e, 2], tets[e, 3]
         for r in range(3):
@@ -770,6 +669,19 @@ def add_all_fused(x, tets, Dm_inv, vol, lam, mu, tet_q, iterations, nl_k, nl_wma
             na = 3 * tets[e, a]
             for i in range(3):
                 grad[na + i] += scale * f[a, i]
+        if mode != WHOLE:
+            u, Gu = used_q[e], used_G[e]
+            far = np.isnan(Gu[0, 0]) or abs(qx * u[0] + qy * u[1] + qz * u[2] + qw * u[3]) < cos_half
+            for r in range(3):
+                for c in range(3):
+                    far = far or abs(G[r, c] - Gu[r, c]) > tolerance
+            moved += far
+            if mode == KEEP_MOVED and not far:
+                continue  # its kept Hessian stays in values
+            u[0], u[1], u[2], u[3] = qx, qy, qz, qw
+            for r in range(3):
+                for c in range(3):
+                    Gu[r, c] = G[r, c]
         # the element's 12x12 Hessian in a local buffer, then one scatter of its 144 entries: the
         # rotation (stress) stiffness adds up to three rank-1 terms to the same entries, and the
         # scattered writes into the CSR values, not the flops, are what the kernel's time goes on
@@ -821,111 +733,21 @@ def add_all_fused(x, tets, Dm_inv, vol, lam, mu, tet_q, iterations, nl_k, nl_wma
                             Hl[3 * b, 3 * a + i] += v0
                             Hl[3 * b + 1, 3 * a + i] += v1
                             Hl[3 * b + 2, 3 * a + i] += v2
+        if mode == KEEP_MOVED:  # take the kept Hessian out as the new one goes in
+            He = kept_H[e]
+            for r in range(12):
+                for c in range(12):
+                    v = Hl[r, c]
+                    values[np.uint64(slots[e, r, c])] += v - He[r, c]
+                    He[r, c] = v
+            continue
         for r in range(12):
             for c in range(12):
                 # unsigned index: no wrap-around test per scatter
                 values[np.uint64(slots[e, r, c])] += Hl[r, c]
-    return e_sum
-
-
-@njit(cache=True)
-def add_all_lazy(x, tets, Dm_inv, vol, lam, mu, tet_q, iterations, nl_k, nl_wmax, grad, slots,
-                 values, stress_stiffness, tolerance, used_q, used_G):
-    """add_all_fused with each tet's Hessian kept from the state it was last assembled at (used_q,
-    used_G: its rotation and stretch R^T F then; used_G[e, 0, 0] NaN: never) until its rotation
-    has turned by more than `tolerance` [rad] or its stretch changed by more than `tolerance` in
-    an entry. values holds the tissue's Hessian alone, kept between calls: a tet that moved on
-    scatters its new Hessian less its old one (both rebuilt from their few numbers: the kernel's
-    time is in the scattered writes, not the flops). The energy and the gradient are exact at
-    every call. Returns (energy [J], tets re-assembled)."""
-    F, G, G0 = np.empty((3, 3)), np.empty((3, 3)), np.empty((3, 3))
-    gr, h, f, f0 = np.empty((4, 3)), np.empty((4, 3)), np.empty((4, 3)), np.empty((4, 3))
-    gg = np.empty((4, 4))
-    Qt, QRt, Qr = np.empty((3, 3)), np.empty((3, 3)), np.empty((3, 3))
-    Ax = np.empty((4, 3, 3))
-    scratch = np.empty((7, 3))
-    Hl, H0 = np.empty((12, 12)), np.empty((12, 12))
-    cos_half = np.cos(0.5 * tolerance)
-    e_sum = 0.0
-    changed = 0
-    for e in range(tets.shape[0]):
-        _deformation(e, x, tets, Dm_inv, gr, F)
-        qx, qy, qz, qw = polar_update_scalars(F, tet_q[e, 0], tet_q[e, 1], tet_q[e, 2], tet_q[e, 3],
-                                              iterations)
-        tet_q[e, 0], tet_q[e, 1], tet_q[e, 2], tet_q[e, 3] = qx, qy, qz, qw
-        V = vol[e]
-        energy, _, scale, c_over = _element_forces(qx, qy, qz, qw, F, G, gr, V, lam, mu, nl_k, nl_wmax, f)
-        e_sum += energy
-        _add_gradient(e, tets, scale, f, grad)
-        u, Gu = used_q[e], used_G[e]
-        fresh = np.isnan(Gu[0, 0])
-        if not fresh:
-            # cos(angle / 2) between the rotations, and the stretch's largest change
-            c = abs(qx * u[0] + qy * u[1] + qz * u[2] + qw * u[3])
-            dG = 0.0
-            for r in range(3):
-                for k in range(3):
-                    dG = max(dG, abs(G[r, k] - Gu[r, k]))
-            if c >= cos_half and dG <= tolerance:
-                continue
-        changed += 1
-        R00, R01, R02, R10, R11, R12, R20, R21, R22 = quat_matrix_entries(qx, qy, qz, qw)
-        _element_hessian(R00, R01, R02, R10, R11, R12, R20, R21, R22, gr, G, f, scale, c_over, V, lam,
-                         mu, stress_stiffness, h, gg, Qt, QRt, Qr, Ax, scratch, Hl)
-        if not fresh:  # the Hessian it scattered last time, from the state it was built at
-            for r in range(3):  # F0 = R_used G_used only to rebuild f0, W0 and the scale then
-                for k in range(3):
-                    G0[r, k] = Gu[r, k]
-            R00, R01, R02, R10, R11, R12, R20, R21, R22 = quat_matrix_entries(u[0], u[1], u[2], u[3])
-            for k in range(3):
-                g0, g1, g2 = G0[0, k], G0[1, k], G0[2, k]
-                F[0, k] = R00 * g0 + R01 * g1 + R02 * g2
-                F[1, k] = R10 * g0 + R11 * g1 + R12 * g2
-                F[2, k] = R20 * g0 + R21 * g1 + R22 * g2
-            _, _, scale0, c_over0 = _element_forces(u[0], u[1], u[2], u[3], F, G0, gr, V, lam, mu, nl_k,
-                                                    nl_wmax, f0)
-            _element_hessian(R00, R01, R02, R10, R11, R12, R20, R21, R22, gr, G0, f0, scale0, c_over0, V,
-                             lam, mu, stress_stiffness, h, gg, Qt, QRt, Qr, Ax, scratch, H0)
-            for r in range(12):
-                for k in range(12):
-                    Hl[r, k] -= H0[r, k]
-        u[0], u[1], u[2], u[3] = qx, qy, qz, qw
-        for r in range(3):
-            for k in range(3):
-                Gu[r, k] = G[r, k]
-        for r in range(12):
-            for k in range(12):
-                values[np.uint64(slots[e, r, k])] += Hl[r, k]
-    return e_sum, changed
-
-
-@njit(cache=True)
-def stretch_update(x, tets, Dm_inv, tet_q, tolerance, used_q, used_G):
-    """After a whole assembly at rotations tet_q: used_q, used_G <- every tet's rotation and
-    stretch R^T F (the state add_all_lazy keeps its Hessian from). Returns how many tets had moved
-    on by more than `tolerance` from the state there before (all of them the first time): the
-    count add_all_lazy would have re-assembled."""
-    F = np.empty((3, 3))
-    gr = np.empty((4, 3))
-    cos_half = np.cos(0.5 * tolerance)
-    moved = 0
-    for e in range(tets.shape[0]):
-        _deformation(e, x, tets, Dm_inv, gr, F)
-        qx, qy, qz, qw = tet_q[e, 0], tet_q[e, 1], tet_q[e, 2], tet_q[e, 3]
-        R00, R01, R02, R10, R11, R12, R20, R21, R22 = quat_matrix_entries(qx, qy, qz, qw)
-        u, Gu = used_q[e], used_G[e]
-        far = np.isnan(Gu[0, 0]) or abs(qx * u[0] + qy * u[1] + qz * u[2] + qw * u[3]) < cos_half
-        for c in range(3):
-            f0, f1, f2 = F[0, c], F[1, c], F[2, c]
-            g0 = R00 * f0 + R10 * f1 + R20 * f2
-            g1 = R01 * f0 + R11 * f1 + R21 * f2
-            g2 = R02 * f0 + R12 * f1 + R22 * f2
-            far = far or abs(g0 - Gu[0, c]) > tolerance or abs(g1 - Gu[1, c]) > tolerance \
-                or abs(g2 - Gu[2, c]) > tolerance
-            Gu[0, c], Gu[1, c], Gu[2, c] = g0, g1, g2
-        u[0], u[1], u[2], u[3] = qx, qy, qz, qw
-        moved += far
-    return moved
+        if mode == KEEP_ALL:
+            kept_H[e] = Hl
+    return e_sum, moved
 
 
 @njit(cache=True)
