@@ -71,6 +71,23 @@ class StepStats:
 
 
 @njit(cache=True)
+def _extrapolate_guess(v, v_prev, scratch):
+    """v <- 2 v - v_prev (CG's starting point) and v_prev <- the v given, for the next step. v is
+    left as it is while v_prev holds anything not finite: the first step (NaN) and the step after
+    a diverged one that the runtime's guard rejected (its velocity is kept here all the same)."""
+    scratch[:] = v
+    usable = True
+    for i in range(v.shape[0]):
+        if not np.isfinite(v_prev[i]):
+            usable = False
+            break
+    if usable:
+        for i in range(v.shape[0]):
+            v[i] += v[i] - v_prev[i]
+    v_prev[:] = scratch
+
+
+@njit(cache=True)
 def _advance(x, v, body_x, body_q, body_pose, body_com_local, dt, body_dof0):
     """q <- q + dt v for nodes and COMs; orientations by the exponential map of dt * w (world)."""
     N = x.shape[0]
@@ -147,6 +164,8 @@ class Solver:
                                       groups=groups, threads=self.threads)
                        if self.precond == pcg_mod.PRECOND_FACTOR else pcg_mod.Factor(model.dof_count))
         self._last_iters = 0
+        self._v_prev = np.full(model.dof_count, np.nan)  # v_n-1 for CG's start (NaN: none yet)
+        self._v_last = np.empty(model.dof_count)
         # PCG's absolute floor (pcg.pcg): e^T M e <= m_min v^2 bounds every node's velocity error
         # by v (m_i e_i^2 <= m_min v^2, m_i >= m_min), whatever the other masses (a clamp made of
         # an immovable 1e12 kg node, as tests do, leaves it alone). r^T z bounds e^T A e only for a
@@ -300,6 +319,12 @@ class Solver:
                 catch_up = self._last_iters > self.refactor_iters and self.factor.slices > 1
                 refactored = self.factor.advance(self.values, 2 if catch_up else 1)
         t3 = clock()
+        # CG starts from the velocity extrapolated from the last two steps (2 v_n - v_n-1) rather
+        # than from v_n: it stops at a residual relative to the right-hand side, and a hand in
+        # smooth motion is nearer the extrapolation (fine hand, open-close: 12.7 -> 10.3 CG
+        # iterations). The solution is the same to the CG tolerance; a worse guess after a jump or
+        # an impact only costs iterations
+        _extrapolate_guess(state.v, self._v_prev, self._v_last)
         iters, res, cap = pcg_mod.pcg(
             m.indptr, m.indices, self.values, self.rhs, state.v, self.cg_tol, self.cg_max_iter,
             self.precond, m.diag_slot, m.node_slots, m.body_slots, m.body_dof0, self._diag_inv,
