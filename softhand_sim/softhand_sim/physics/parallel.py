@@ -30,18 +30,17 @@ from softhand_sim.physics.ldlt import (backward_column, forward_column, gather_r
 def tissue_by_hand(x, tets, Dm_inv, vol, lam, mu, tet_q, iterations, nl_k, nl_wmax, grad, slots,
                    values, stress_stiffness, mode, tolerance, used_q, used_G, kept_H, tet0):
     """tissue.assemble_tissue on each hand's tets tet0[h]:tet0[h+1] in parallel (the kept arrays
-    empty in mode WHOLE); returns (U [J], tets moved on)."""
+    per tet, or empty without tissue_hessian_tolerance: not read in mode WHOLE); returns
+    (U [J], tets moved on)."""
     hands = tet0.shape[0] - 1
     energy = np.zeros(hands)
     moved = np.zeros(hands, np.int64)
-    keep = mode != tissue.WHOLE
     for h in prange(hands):
         a, b = tet0[h], tet0[h + 1]
-        k0, k1 = (a, b) if keep else (0, 0)
         energy[h], moved[h] = tissue.assemble_tissue(
             x, tets[a:b], Dm_inv[a:b], vol[a:b], lam, mu, tet_q[a:b], iterations, nl_k, nl_wmax,
-            grad, slots[a:b], values, stress_stiffness, mode, tolerance, used_q[k0:k1],
-            used_G[k0:k1], kept_H[k0:k1])
+            grad, slots[a:b], values, stress_stiffness, mode, tolerance, used_q[a:b], used_G[a:b],
+            kept_H[a:b])
     return energy.sum(), moved.sum()
 
 

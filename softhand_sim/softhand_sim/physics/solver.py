@@ -165,7 +165,7 @@ class Solver:
                        if self.precond == pcg_mod.PRECOND_FACTOR else pcg_mod.Factor(model.dof_count))
         self._last_iters = 0
         self._v_prev = np.full(model.dof_count, np.nan)  # v_n-1 for CG's start (NaN: none yet)
-        self._v_last = np.empty(model.dof_count)
+        self._v_scratch = np.empty(model.dof_count)
         # PCG's absolute floor (pcg.pcg): e^T M e <= m_min v^2 bounds every node's velocity error
         # by v (m_i e_i^2 <= m_min v^2, m_i >= m_min), whatever the other masses (a clamp made of
         # an immovable 1e12 kg node, as tests do, leaves it alone). r^T z bounds e^T A e only for a
@@ -222,20 +222,22 @@ class Solver:
         """The tissue term into vals (each hand's tets on its own thread with solver_threads > 1)
         in one of tissue.assemble_tissue's modes; returns (energy [J], tets moved on)."""
         m, p = self.model, self.params
-        args = (state.node_x, m.tets, m.tet_Dm_inv, m.tet_volume, self._lame[0], self._lame[1],
-                state.tet_q, int(p["polar_iterations"]), float(p["nonlinear_k"]),
-                float(p["nonlinear_w_max"]), self.grad, m.tet_slots, vals, self._stress, mode,
-                self._lazy, self._used_q, self._used_G, self._kept_H)
-        if self._tet0 is not None:
-            return parallel.tissue_by_hand(*args, self._tet0)
+        polar = int(p["polar_iterations"])
+        nl_k, nl_wmax = float(p["nonlinear_k"]), float(p["nonlinear_w_max"])
+        lam, mu = self._lame
         if self._fused_tissue:
+            args = (state.node_x, m.tets, m.tet_Dm_inv, m.tet_volume, lam, mu, state.tet_q, polar, nl_k,
+                    nl_wmax, self.grad, m.tet_slots, vals, self._stress, mode, self._lazy, self._used_q,
+                    self._used_G, self._kept_H)
+            if self._tet0 is not None:
+                return parallel.tissue_by_hand(*args, self._tet0)
             return tissue.assemble_tissue(*args)
-        tissue.update_rotations(state.node_x, m.tets, m.tet_Dm_inv, state.tet_q, args[7])
+        tissue.update_rotations(state.node_x, m.tets, m.tet_Dm_inv, state.tet_q, polar)
         e = tissue.add_all(state.node_x, m.node_rest, m.tets, m.tet_K0, m.tet_volume, state.tet_q,
-                           args[8], args[9], self.grad, m.tet_slots, vals)
+                           nl_k, nl_wmax, self.grad, m.tet_slots, vals)
         if self._stress:  # the isotropic H_rot of the params' material
-            tissue.add_stress_hessian(state.node_x, m.tets, m.tet_Dm_inv, m.tet_volume, self._lame[0],
-                                      self._lame[1], state.tet_q, args[8], args[9], m.tet_slots, vals)
+            tissue.add_stress_hessian(state.node_x, m.tets, m.tet_Dm_inv, m.tet_volume, lam, mu,
+                                      state.tet_q, nl_k, nl_wmax, m.tet_slots, vals)
         return e, 0
 
     def _kept_tissue(self, state, vals):
@@ -324,7 +326,7 @@ class Solver:
         # smooth motion is nearer the extrapolation (fine hand, open-close: 12.7 -> 10.3 CG
         # iterations). The solution is the same to the CG tolerance; a worse guess after a jump or
         # an impact only costs iterations
-        _extrapolate_guess(state.v, self._v_prev, self._v_last)
+        _extrapolate_guess(state.v, self._v_prev, self._v_scratch)
         iters, res, cap = pcg_mod.pcg(
             m.indptr, m.indices, self.values, self.rhs, state.v, self.cg_tol, self.cg_max_iter,
             self.precond, m.diag_slot, m.node_slots, m.body_slots, m.body_dof0, self._diag_inv,

@@ -753,7 +753,8 @@ def _tissue_kernel(x, tets, Dm_inv, vol, lam, mu, tet_q, iterations, nl_k, nl_wm
 @njit(cache=True)
 def rotation_update(tet_q, tolerance, used_q):
     """used_q <- tet_q; returns how many tets had turned by more than `tolerance` [rad] from it
-    (stretch_update's count from the rotations alone: a few flops a tet)."""
+    (the count of KEEP_ALL from the rotations alone, a few flops a tet: the solver's measure of
+    motion while it runs the whole kernel)."""
     cos_half = np.cos(0.5 * tolerance)
     moved = 0
     for e in range(tet_q.shape[0]):
