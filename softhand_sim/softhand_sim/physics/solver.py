@@ -39,8 +39,8 @@ from softhand_sim.physics.rotations import integrate_rotation, quat_to_matrix
 # runs the whole tissue kernel instead of keeping Hessians (the measured break-even, coarse hand:
 # the kernel keeping none 0.17 ms, every tet 0.37, the whole kernel 0.35), and the most steps
 # the kept Hessians' sums go without being assembled anew (their round-off)
-LAZY_WHOLE_SHARE = 0.85
-LAZY_WHOLE_STEPS = 1000
+KEEP_WHOLE_SHARE = 0.85
+KEEP_RESUM_STEPS = 1000
 
 # The stages of Solver.step in order, as (name, StepStats field): the split `softhand bench
 # --profile` and sim_node's /diagnostics report.
@@ -190,17 +190,18 @@ class Solver:
         self._triplets = pcg_mod.triplet_pattern(m.indptr, m.indices)
         self._fused_tissue = tissue.is_isotropic_K0(m.tet_K0, m.tet_Dm_inv, m.tet_volume, *self._lame)
         self._stress = bool(p["tissue_stress_stiffness"])  # H_rot: the tissue's rotation stiffness
-        # tissue_hessian_tolerance: the tissue's Hessian kept per tet between steps (_kept_tissue)
-        self._lazy = float(p["tissue_hessian_tolerance"])
-        if self._lazy > 0.0 and not self._fused_tissue:
-            raise ValueError(f"tissue_hessian_tolerance={self._lazy}: needs the isotropic tissue of the "
-                             f"params (the fused kernel); this model's K0 is not")
-        T = len(m.tets) if self._lazy > 0.0 else 0  # the kept Hessians (12 x 12 each) and states
+        # tissue_hessian_tolerance: the tissue's Hessian kept per tet between steps (_tissue_term)
+        self._hessian_tol = float(p["tissue_hessian_tolerance"])
+        if self._hessian_tol > 0.0 and not self._fused_tissue:
+            raise ValueError(f"tissue_hessian_tolerance={self._hessian_tol}: needs the isotropic tissue "
+                             f"of the params (the fused kernel); this model's K0 is not")
+        # the kept Hessians (12 x 12 each) and the states they were built at
+        T = len(m.tets) if self._hessian_tol > 0.0 else 0
         self._tissue_values = np.zeros(nnz if T else 0)
         self._used_q, self._used_G = np.zeros((T, 4)), np.full((T, 3, 3), np.nan)
         self._kept_H = np.zeros((T, 12, 12))
         self.tissue_updated = len(m.tets)  # tets whose Hessian the last step rebuilt (or would have)
-        self._lazy_steps = 0
+        self._kept_steps = 0
         self._kept_valid = False  # _tissue_values holds the kept Hessians' sum
         # the hands on the cores (parallel.py): each hand's tets, and the products' rows in chunks
         # (two hands or more; one hand runs on one thread whatever solver_threads says)
@@ -227,8 +228,8 @@ class Solver:
         lam, mu = self._lame
         if self._fused_tissue:
             args = (state.node_x, m.tets, m.tet_Dm_inv, m.tet_volume, lam, mu, state.tet_q, polar, nl_k,
-                    nl_wmax, self.grad, m.tet_slots, vals, self._stress, mode, self._lazy, self._used_q,
-                    self._used_G, self._kept_H)
+                    nl_wmax, self.grad, m.tet_slots, vals, self._stress, mode, self._hessian_tol,
+                    self._used_q, self._used_G, self._kept_H)
             if self._tet0 is not None:
                 return parallel.tissue_by_hand(*args, self._tet0)
             return tissue.assemble_tissue(*args)
@@ -240,27 +241,30 @@ class Solver:
                                       state.tet_q, nl_k, nl_wmax, m.tet_slots, vals)
         return e, 0
 
-    def _kept_tissue(self, state, vals):
-        """The tissue term into vals with tissue_hessian_tolerance: the kept Hessians' sums in
-        self._tissue_values, into which only the tets that moved on add their new Hessian less
-        their kept one (KEEP_MOVED). While more than LAZY_WHOLE_SHARE of the tets moved on in the
-        last step the whole kernel writes vals directly and only the rotations are compared; the
-        step after the motion settles keeps every tet anew (KEEP_ALL), as does every
-        LAZY_WHOLE_STEPS-th (the sums' round-off). Returns the energy [J]."""
+    def _tissue_term(self, state, vals):
+        """The tissue term into vals. Without tissue_hessian_tolerance, and while more than
+        KEEP_WHOLE_SHARE of the tets moved on in the last step, the whole kernel writes vals
+        directly (with the tolerance only the rotations are compared then, a few flops a tet).
+        Otherwise the kept Hessians' sums are in self._tissue_values, into which only the tets
+        that moved on add their new Hessian less their kept one (KEEP_MOVED); the step after the
+        motion settles keeps every tet anew (KEEP_ALL), as does every KEEP_RESUM_STEPS-th (the
+        sums' round-off). Returns the energy [J]."""
         tv, T = self._tissue_values, len(self.model.tets)
-        if self.tissue_updated > LAZY_WHOLE_SHARE * T:
+        if self._hessian_tol == 0.0 or self.tissue_updated > KEEP_WHOLE_SHARE * T:
             vals[:] = 0.0
             e, _ = self._tissue(state, vals)
-            self._kept_valid = False
-            self.tissue_updated = tissue.rotation_update(state.tet_q, self._lazy, self._used_q)
+            if self._hessian_tol > 0.0:
+                self._kept_valid = False
+                self.tissue_updated = tissue.rotation_update(state.tet_q, self._hessian_tol,
+                                                             self._used_q)
             return e
-        if not self._kept_valid or self._lazy_steps >= LAZY_WHOLE_STEPS:
+        if not self._kept_valid or self._kept_steps >= KEEP_RESUM_STEPS:
             tv[:] = 0.0
             e, self.tissue_updated = self._tissue(state, tv, tissue.KEEP_ALL)
-            self._kept_valid, self._lazy_steps = True, 0
+            self._kept_valid, self._kept_steps = True, 0
         else:
             e, self.tissue_updated = self._tissue(state, tv, tissue.KEEP_MOVED)
-            self._lazy_steps += 1
+            self._kept_steps += 1
         vals[:] = tv
         return e
 
@@ -274,11 +278,7 @@ class Solver:
         m, p = self.model, self.params
         g, vals, b0 = self.grad, self.values, m.body_dof0
         g[:] = 0.0
-        if self._lazy > 0.0:
-            e = self._kept_tissue(state, vals)
-        else:
-            vals[:] = 0.0
-            e, _ = self._tissue(state, vals)
+        e = self._tissue_term(state, vals)
         e += joints.add_all(state.body_x, state.body_q, m.joint_parent, m.joint_child,
                             m.joint_r_parent, m.joint_r_child, float(p["joint_stiffness"]),
                             m.joint_rest_rotation, m.jrow_joint, m.jrow_axis, m.jrow_lo, m.jrow_hi,

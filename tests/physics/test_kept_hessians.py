@@ -51,8 +51,8 @@ def test_kept_hessians_are_those_of_the_kept_states(nl_k):
     N, T = len(X), len(tets)
     q0 = random_quat(rng)
     x = X @ quat_to_matrix(q0).T + 0.0005 * rng.normal(size=X.shape)
-    q_lazy = np.tile(q0, (T, 1))
-    q_whole = q_lazy.copy()
+    q_kept = np.tile(q0, (T, 1))
+    q_whole = q_kept.copy()
     used_q, used_G = np.zeros((T, 4)), np.full((T, 3, 3), np.nan)
     kept_H = np.zeros((T, 12, 12))
     kept = np.zeros(9 * N * N)
@@ -63,27 +63,27 @@ def test_kept_hessians_are_those_of_the_kept_states(nl_k):
         x = x @ quat_to_matrix(dq).T
         if k == 4:  # one corner pushed by 1 mm: its tets strain, the rest only turn
             x[0] += 0.001
-        g_lazy, g_whole, H_whole = np.zeros(3 * N), np.zeros(3 * N), np.zeros(9 * N * N)
+        g_kept, g_whole, H_whole = np.zeros(3 * N), np.zeros(3 * N), np.zeros(9 * N * N)
         # 20 polar iterations: converged rotations, so turning the box changes no tet's stretch
-        e_lazy, changed = tissue.assemble_tissue(x, tets, Dm_inv, vol, lam, mu, q_lazy, 20, nl_k, WMAX,
-                                                 g_lazy, slots, kept, True, mode, TOL, used_q, used_G,
+        e_kept, changed = tissue.assemble_tissue(x, tets, Dm_inv, vol, lam, mu, q_kept, 20, nl_k, WMAX,
+                                                 g_kept, slots, kept, True, mode, TOL, used_q, used_G,
                                                  kept_H)
         e_whole = tissue.add_all_fused(x, tets, Dm_inv, vol, lam, mu, q_whole, 20, nl_k, WMAX,
                                        g_whole, slots, H_whole, True)
         counts.append(changed)
-        assert abs(e_lazy - e_whole) <= 1e-12 * abs(e_whole)
-        assert np.abs(g_lazy - g_whole).max() <= 1e-12 * np.abs(g_whole).max()
+        assert abs(e_kept - e_whole) <= 1e-12 * abs(e_whole)
+        assert np.abs(g_kept - g_whole).max() <= 1e-12 * np.abs(g_whole).max()
         ref = _kept_reference(X, tets, Dm_inv, vol, lam, mu, used_q, used_G, nl_k, slots, 9 * N * N)
         assert np.abs(kept - ref).max() <= 1e-9 * np.abs(ref).max()
         summed = np.zeros(9 * N * N)  # the kept Hessians are those summed
         np.add.at(summed, slots.ravel(), kept_H.ravel())
         assert np.abs(kept - summed).max() <= 1e-9 * np.abs(ref).max()
         # the kept states are within the tolerance of the current ones
-        cos = np.abs(np.sum(used_q * q_lazy, axis=1))
+        cos = np.abs(np.sum(used_q * q_kept, axis=1))
         assert np.all(2 * np.arccos(np.minimum(cos, 1.0)) <= TOL + 1e-12)
-        G = np.einsum("eji,ejk->eik", np.stack([quat_to_matrix(q) for q in q_lazy]),
-                      np.einsum("erk,ekc->erc", np.stack([x[t[1:]] - x[t[0]] for t in tets]).transpose(0, 2, 1),
-                                Dm_inv))
+        Ds = np.stack([x[t[1:]] - x[t[0]] for t in tets]).transpose(0, 2, 1)
+        G = np.einsum("eji,ejk->eik", np.stack([quat_to_matrix(q) for q in q_kept]),
+                      np.einsum("erk,ekc->erc", Ds, Dm_inv))
         assert np.abs(G - used_G).max() <= TOL + 1e-12
         if turn >= TOL:  # every tet turned past the tolerance: all re-assembled, the whole Hessian
             assert changed == T
@@ -156,7 +156,7 @@ def test_kept_hessians_move_the_hand_by_less_than_a_micrometre(scenario, whole_s
     kernel and the kept Hessians), the same holds and both kinds of step occur."""
     from softhand_sim.physics import solver as solver_module
     if whole_share is not None:
-        monkeypatch.setattr(solver_module, "LAZY_WHOLE_SHARE", whole_share)
+        monkeypatch.setattr(solver_module, "KEEP_WHOLE_SHARE", whole_share)
     state, kept, shares = _run(scenario, TOL, 200)
     exact, _, _ = _run(scenario, 0.0, 200)
     assert np.abs(state.node_x - exact.node_x).max() < 1e-6
