@@ -6,6 +6,7 @@ import signal
 import time
 
 import numpy as np
+import scipy.stats
 import pytest
 from geometry_msgs.msg import PoseArray
 from rclpy.duration import Duration
@@ -73,13 +74,18 @@ def test_replay_count_timing_and_clock(ros_env, tmp_path):
         np.testing.assert_array_equal(np.diff(got), np.diff(stamps))  # the bag's spacing, re-timed
         late = (np.asarray(received_wall[:len(got)]) - got) * 1e-9   # receive minus stamp, wall clock
         assert np.median(late) == pytest.approx(0.0, abs=0.02), late
-        # timing: arrival time minus bag time is a constant offset up to scheduling noise
+        # timing: arrival time minus bag time is a constant offset up to scheduling noise. The
+        # offset is the median one and the speed a Theil-Sen slope: this process's listener is
+        # itself scheduled on the shared cores, and one late arrival (the first or the last frame
+        # 100 ms late, seen under load) must not stand for the player's timing
         arrival = np.asarray(joints.times)
-        skew = (arrival - arrival[0]) - (stamps - stamps[0]) * 1e-9
+        bag_s = (stamps - stamps[0]) * 1e-9
+        offset = arrival - bag_s
+        skew = offset - np.median(offset)
         assert np.median(np.abs(skew)) < 0.005, f"median skew {np.median(np.abs(skew)) * 1e3:.1f} ms"
-        assert np.percentile(np.abs(skew), 90) < 0.02
-        duration = arrival[-1] - arrival[0]
-        assert duration == pytest.approx((stamps[-1] - stamps[0]) * 1e-9, abs=0.05)
+        assert np.percentile(np.abs(skew), 90) < 0.02, f"p90 skew {np.percentile(np.abs(skew), 90) * 1e3:.1f} ms"
+        speed = scipy.stats.theilslopes(arrival, bag_s).slope  # 1: played at the recorded speed
+        assert speed == pytest.approx(1.0, abs=0.03), f"played at {speed:.3f}x the bag's speed"
         # /clock: the stamps' time, monotonic, every message stamp present, ticks in between at ~200 Hz
         clock_ns = np.array([stamp_to_ns(c.clock) for c in clock.msgs])
         assert np.all(np.diff(clock_ns) > 0)
