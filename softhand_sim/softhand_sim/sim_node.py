@@ -23,6 +23,7 @@ tick), and tick_ms_p50 / _p99 for the whole tick (step_ms is SimRuntime.step alo
 from __future__ import annotations
 
 import argparse
+import gc
 import math
 import time
 
@@ -222,6 +223,7 @@ class SimNode(Node):
             self.runtime = handover(self.runtime, runtime)
             for hand in self.hand_topics:  # the new hand's mesh goes out when it enters
                 hand.new_model(runtime)
+            gc.freeze()  # the fitted hand lives for the run too (run_node froze what came before it)
             self.get_logger().info(f"hand_measures auto: {self.sizer.describe()}")
         elif self.sizer.state == "failed":
             self.get_logger().error(f"hand_measures auto: {self.sizer.describe()}", once=True)

@@ -21,7 +21,6 @@ and parameters. Honours use_sim_time (all times are the node clock's); Ctrl-C / 
 from __future__ import annotations
 
 import argparse
-import gc
 import time
 
 import numpy as np
@@ -146,10 +145,6 @@ class TrackingNode(Node):
         self.timer = self.create_timer(1.0 / p["rate"], self.on_timer)
         DiagnosticsPublisher(self, self.collect_diagnostics, period=1.0 / p["diagnostics_rate"],
                              name=diagnostic_name(name, DIAGNOSTIC_TASK))
-        # Objects made so far (rclpy, numba, numpy) live for the whole run: freezing them keeps the
-        # collector's full passes from walking them, which otherwise stalls the loop ~50 ms.
-        gc.collect()
-        gc.freeze()
         self.get_logger().info(f"tracking the {self.hand} hand at {p['rate']:.0f} Hz; waiting for "
                                f"{self.topics['tracker']}, publishing {self.topics['out']}")
 
