@@ -173,6 +173,59 @@ def test_free_air_lag_leaves_out_the_states_near_contact(tmp_path):
     assert "sim_free_air" not in lag_report(recording(tmp_path / "plain"))
 
 
+def test_lag_off_tracker_dropouts_leaves_out_the_answer_to_a_jump(tmp_path):
+    """A tracker that loses the hand for 40 ms (no frame between 1.50 and 1.54 s) and a simulated hand that
+    answers it 90 ms late for 0.3 s (a hand ringing after the tracked one jumped) instead of 30 ms:
+    the dropout is found (its length, the palm's move across it), the whole run's lag lies above 30
+    ms, the lag off dropouts (the states outside it and 0.3 s after) is the 30 ms within 1 ms and is
+    printed. A frame interval of twice the median (one frame lost) is not a dropout, a dropout's palm
+    jump is the palm's move across it, and a recording without one has no such layer."""
+    from softhand_sim.commands.lag import Series, dropouts, off_dropouts, tracked_bones
+
+    base = recording(tmp_path / "base", duration=3.0)
+    motion = tracker_bags.SCENARIOS["grasp_short"].motion()
+    adapter = TrackerAdapter()
+    gap = (1.50, 1.54)
+    records = []
+    for t in np.arange(0.0, 3.0, 0.01):
+        if gap[0] < t < gap[1] - 1e-9:
+            continue
+        joints = forward_kinematics(*motion(float(np.clip(t, 0.0, motion.duration))))[0]
+        records.append((tracker_topic("right"), POSE_ARRAY, int((T0 + t + 0.002) * 1e9),
+                        _msg(joints, T0 + t)))
+    sim = layer_topics("right")["sim"]
+    for t in np.arange(0.1, 3.0, 1.0 / 60.0):
+        delay = 0.090 if gap[0] < t <= gap[1] + 0.3 else 0.030
+        shown = float(np.clip(t - delay, 0.0, motion.duration))
+        bones = adapter.convert(forward_kinematics(*motion(shown))[0][:, :3])
+        records.append((sim, POSE_ARRAY, int((T0 + t + 0.003) * 1e9), _msg(bones, T0 + t)))
+    records.sort(key=lambda r: r[2])
+    write_bag(tmp_path / "dropout", records)
+    r = lag_report(tmp_path / "dropout")
+    print(format_report(r))
+    assert r["frames"]["dropouts"] == 1 and len(r["dropouts"]) == 1
+    g = r["dropouts"][0]
+    assert g["length_ms"] == pytest.approx(40.0, abs=0.5)
+    assert g["start_s"] == pytest.approx(T0 + 1.50, abs=1e-6)
+    assert r["sim"]["lag_phalanx_ms"] > 33.0
+    assert r["sim_off_dropouts"]["lag_phalanx_ms"] == pytest.approx(30.0, abs=1.0)
+    assert r["sim_off_dropouts"]["messages"] == pytest.approx(r["sim"]["messages"] - 60 * 0.35, abs=2)
+    text = format_report(r)
+    assert "sim off dropouts" in text and "tracker dropouts: 1, the longest 40 ms" in text
+    # one frame lost is jitter, not a dropout
+    t = np.r_[np.arange(0.0, 1.0, 0.01), np.arange(1.01, 2.0, 0.01)]  # 1.00 s lost
+    motion_joints = np.array([forward_kinematics(*motion(float(x)))[0] for x in t])
+    assert dropouts(tracked_bones(motion_joints, t)) == []
+    poses = np.zeros((6, 16, 7))
+    poses[:, :, 6] = 1.0
+    poses[4:, 0, 0] = 0.005  # the palm 5 mm on after a 50 ms dropout
+    jump = dropouts(Series(np.array([0.0, 0.01, 0.02, 0.03, 0.08, 0.09]), poses))
+    assert [(d["length_ms"], d["palm_jump_mm"]) for d in jump] == [(50.0, 5.0)]
+    assert off_dropouts([1.0, 1.6, 1.9], [{"start_s": 1.5, "end_s": 1.55}]).tolist() == [True, False, True]
+    plain = lag_report(base)
+    assert plain["frames"]["dropouts"] == 0 and "sim_off_dropouts" not in plain and "dropouts" not in plain
+
+
 def test_contact_steps_count_each_hands_contacts_and_skin_on_skin(tmp_path):
     """contact_steps reads /hand/contacts per step for one hand (the `hand` field), with its skin-on-
     skin contacts apart; softhand fidelity's skin_contact_counts come from them (the most in one

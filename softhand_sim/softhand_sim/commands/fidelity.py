@@ -13,10 +13,12 @@ Prints the figures of softhand_sim.handmodel.fidelity (palm, knuckle, fingertip 
 phalanx direction error, thumb-index tip gap) as JSON: one object, with the figures of each hand
 under "hands" when a recording holds two. A recording's figures also hold what `softhand lag`
 measures (softhand_sim.commands.lag): `lag_ms` (the best time shift of the intermediate and the
-simulated phalanx directions and palm behind the tracked ones, and `sim_free_air`: the simulated
-hand's over its states 0.3 s or more from any contact), `palm_deg` (the simulated palm's
-orientation error), `frames` (tracker frames recorded, and received / accepted / rejected by
-the hand's tracking node) and `skin_contacts` (skin on skin, with sim_node's self_contact: the
+simulated phalanx directions and palm behind the tracked ones, `sim_free_air`: the simulated
+hand's over its states 0.3 s or more from any contact, and `sim_off_dropouts`, in a recording
+whose tracker lost the hand: over those free-air states outside each dropout and 0.3 s after it),
+`palm_deg` (the simulated palm's orientation error), `frames` (tracker frames recorded, and
+received / accepted / rejected by the hand's tracking node, and the tracker's dropouts) and
+`skin_contacts` (skin on skin, with sim_node's self_contact: the
 most in one step and the steps with any).
 """
 import argparse

@@ -20,6 +20,15 @@ intermediate layer and for the simulated skeleton each:
   which holds them back (a best shift there is not a lag); this is the lag of the free-air motion
   around it. Left out when fewer than MIN_FREE_SAMPLES states are free (the hand in contact all
   along) or the recording has no /hand/contacts;
+* the simulated skeleton's lag off tracker dropouts (`sim_off_dropouts`, only for a recording
+  with one): the free-air states (all of them without /hand/contacts) outside every tracker
+  dropout and FREE_AIR_S after it. A dropout is an interval between tracked frames over
+  DROPOUT_FACTOR times the median one; the tracked hand is drawn straight across it (or not at
+  all, past MAX_GAP_S), and a tracker that finds the hand again often puts it somewhere else: the
+  Leap recording leap_grab loses two frames 0.34 s before its end and puts the palm 25 mm on,
+  and the hand's response to that jump sets the whole run's best shift (the states before it:
+  phalanx / palm lag 2.3 / 4.9 ms, offline with the node set's transport delays, against 11.4 /
+  16.2 over the run). `dropouts` in the report gives each one's time, length and palm jump;
 * errors at zero shift: phalanx direction angle, palm position and palm orientation (median /
   p95 / max), and the phalanx angle p95 at the best shift (what is left once the lag is removed);
 * tracker frames: recorded, and that hand's tracking node's received / accepted / rejected (its
@@ -47,8 +56,9 @@ import numpy as np
 from softhand_sim.topics import hand_topic, tracker_topic
 
 LAYER_TOPICS = {"intermediate": "intermediate_bones", "sim": "bones"}  # layer -> per-side topic name
-REPORT_LAYERS = (*LAYER_TOPICS, "sim_free_air")  # the layers of a report, in its order
-LAYER_NAMES = {"sim_free_air": "sim in free air"}  # as printed, where not the key
+REPORT_LAYERS = (*LAYER_TOPICS, "sim_free_air", "sim_off_dropouts")  # the layers of a report, in its order
+# as printed, where not the key
+LAYER_NAMES = {"sim_free_air": "sim in free air", "sim_off_dropouts": "sim off dropouts"}
 SHIFT_RANGE_MS = (-60.0, 250.0)  # [ms] lags searched (negative: the layer leads)
 COARSE_MS = 5.0                  # [ms] the search's first grid; then 1 ms steps around the best
 MAX_GAP_S = 0.05                 # [s] tracked frames further apart are not interpolated across
@@ -63,6 +73,8 @@ MIN_TRAVEL_M = 0.01     # [m] spread of the tracked palm position
 CONTACTS_TOPIC, CONTACTS_TYPE = "/hand/contacts", "sensor_msgs/msg/PointCloud2"
 FREE_AIR_S = 0.3        # [s] a state this far in time from any contact of its hand is in free air
 MIN_FREE_SAMPLES = 30   # free-air states needed for a free-air lag (half a second at 60 Hz)
+DROPOUT_FACTOR = 2.5    # a tracked frame interval this many times the median one is a dropout (one
+                        # frame lost is not: 2x, the ordinary jitter of a Leap at ~115 Hz)
 
 
 @dataclass
@@ -326,6 +338,29 @@ def free_air(t, contact_t, contact_count, margin=FREE_AIR_S) -> np.ndarray:
     return (before > margin) & (after > margin)
 
 
+def dropouts(ref: Series) -> list[dict]:
+    """The tracker dropouts of the tracked bones `ref` (module docstring): each one's start and end
+    [s] (the frames either side), its length [ms] and how far the palm moved across it [mm]."""
+    if ref.t.size < 3:
+        return []
+    dt = np.diff(ref.t)
+    gaps = np.flatnonzero(dt > DROPOUT_FACTOR * np.median(dt))
+    palm = ref.poses[:, 0, :3]
+    return [{"start_s": float(ref.t[i]), "end_s": float(ref.t[i + 1]),
+             "length_ms": round(1e3 * float(dt[i]), 1),
+             "palm_jump_mm": round(1e3 * float(np.linalg.norm(palm[i + 1] - palm[i])), 1)}
+            for i in gaps]
+
+
+def off_dropouts(t, gaps, margin=FREE_AIR_S) -> np.ndarray:
+    """Mask of the times t [s] outside every dropout of `gaps` (`dropouts`) and `margin` [s] after it."""
+    t = np.asarray(t, float)
+    keep = np.ones(t.size, dtype=bool)
+    for g in gaps:
+        keep &= (t <= g["start_s"]) | (t > g["end_s"] + margin)
+    return keep
+
+
 def _sorted(t, poses) -> Series:
     order = np.argsort(t, kind="stable")
     return Series(np.asarray(t)[order], np.asarray(poses)[order])
@@ -359,6 +394,7 @@ def lag_report(path, hand: str = "right", time_base: str = "auto", contacts=_REA
     ref = tracked_bones(joints, (tr_stamp, tr_recv)[col], hand)
     ref = _sorted(ref.t, ref.poses)
     report["frames"]["valid"] = int(ref.t.size)
+    report["first_frame_s"] = float(ref.t[0]) if ref.t.size else 0.0  # the times below are on this clock
     if ref.t.size < 2:  # nothing to compare with (no valid tracker frame, or one)
         return report
     ref_spread = spread(ref)
@@ -375,12 +411,34 @@ def lag_report(path, hand: str = "right", time_base: str = "auto", contacts=_REA
             report["sim_free_air"] = layer_lag(ref, _sorted(s[col][free], s[2][free]),
                                                ref_spread=spread(Series(ref.t[ref_free], ref.poses[ref_free])))
             report["sim_free_air"]["messages"] = int(free.sum())
+    gaps = dropouts(ref)
+    report["frames"]["dropouts"] = len(gaps)
+    if gaps:
+        report["dropouts"] = gaps
+    if gaps and layers["sim"] in data:
+        s = data[layers["sim"]]
+        keep, ref_keep = off_dropouts(s[col], gaps), off_dropouts(ref.t, gaps)
+        if contacts is not None:
+            c_t = (contacts.stamp, contacts.recv)[col]
+            keep &= free_air(s[col], c_t, contacts.count)
+            ref_keep &= free_air(ref.t, c_t, contacts.count)
+        if keep.sum() >= MIN_FREE_SAMPLES:
+            ref_spread = spread(Series(ref.t[ref_keep], ref.poses[ref_keep]))
+            kept = _sorted(s[col][keep], s[2][keep])
+            report["sim_off_dropouts"] = layer_lag(ref, kept, ref_spread=ref_spread)
+            report["sim_off_dropouts"]["messages"] = int(keep.sum())
     return report
 
 
 def format_report(r: dict, title: str = "") -> str:
     lines = [f"lag report {title} (time base: {r['time_base']})".replace("  ", " "),
              "  tracker frames: " + ", ".join(f"{k} {v}" for k, v in r["frames"].items())]
+    if r.get("dropouts"):
+        t0 = r.get("first_frame_s", 0.0)
+        longest = max(r["dropouts"], key=lambda g: g["length_ms"])
+        lines.append(f"  tracker dropouts: {len(r['dropouts'])}, the longest {longest['length_ms']:.0f} ms "
+                     f"at {longest['start_s'] - t0:.2f} s into the recording, the palm "
+                     f"{longest['palm_jump_mm']:.1f} mm on across it")
     for name in REPORT_LAYERS:
         if name not in r:
             continue
@@ -390,7 +448,7 @@ def format_report(r: dict, title: str = "") -> str:
             continue
         pd, pm, pa = x["phalanx_deg"], x["palm_mm"], x["palm_deg"]
         label = LAYER_NAMES.get(name, name)
-        lines.append(f"  {label:15s} lag: phalanx {lag_text(x['lag_phalanx_ms'], ' ms'):>8s}, palm "
+        lines.append(f"  {label:16s} lag: phalanx {lag_text(x['lag_phalanx_ms'], ' ms'):>8s}, palm "
                      f"{lag_text(x['lag_palm_ms'], ' ms'):>8s} | "
                      f"phalanx {pd['median']:.1f}/{pd['p95']:.1f}/{pd['max']:.1f} deg (median/p95/max; p95 at lag "
                      f"{x['phalanx_deg_p95_at_lag']:.1f}), palm {pm['median']:.1f}/{pm['p95']:.1f}/{pm['max']:.1f} mm, "
