@@ -45,8 +45,12 @@ messages and bytes written. One hand is measured per report, the hands taking tu
 each hand's figures are refreshed every second report and repeated in between). It records its
 own /diagnostics, so the lags are in the bag (the Foxglove layout plots them).
 
-Stopping: SIGINT or SIGTERM ends spin; close() writes the pending chunk, the summary and
-metadata.yaml, so every message that reached a callback is in the bag.
+Writing: a callback only takes the message with its receive time; a writer thread writes them into
+the bag every WRITE_PERIOD (10 ms), so writing a chunk never holds back the callbacks (nor the
+receive times they stamp).
+
+Stopping: SIGINT or SIGTERM ends spin; close() writes the messages still taken, the pending chunk,
+the summary and metadata.yaml, so every message that reached a callback is in the bag.
 SIGKILL cannot be caught: the mcap then has no summary and no metadata.yaml, but every chunk
 written before the kill is intact. The pending chunk is written every `flush_period` s (default
 1 s), so a SIGKILL loses at most about that much. Recover with
@@ -60,6 +64,7 @@ import os
 import sys
 import threading
 import time
+from collections import deque
 
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
@@ -86,6 +91,9 @@ DEFAULT_TOPICS = [t for t in TOPIC_TYPES if t not in HEAVY_TOPICS]
 #: tracker resent (measured: 664 of 666 recorded while tracking_node received all 666).
 ADAPTIVE_TOPICS = TRACKER_TOPICS
 
+
+
+WRITE_PERIOD = 0.01  # [s] the writer thread writes the messages taken this often
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -152,12 +160,20 @@ class RecordNode(Node):
         self.header_types = set()
         self._closed = False
         self.create_timer(cfg["discovery_period"], self._discover)
-        # the pending chunk goes to disk every flush_period from a thread of its own, under the
-        # writer's lock: on rclpy's EventsExecutor a timer here missed its turn after a burst of
-        # messages (1 in 5 runs of the SIGKILL test lost the last chunk; none with this thread)
+        # The callbacks only take each message (with its receive time) into _pending; a thread of
+        # its own writes them into the bag, under the writer's lock, and the pending chunk to disk
+        # every flush_period. Written in the callbacks, a message that closed a 1 MiB chunk (the
+        # skin marker's) held the executor 10-36 ms, and the flush as long: every message behind
+        # it was stamped that late (22 callbacks over 3 ms in a 6 s demo), which the demo's latency
+        # figures, taken from these receive times, showed as latency. (A flush timer in the
+        # executor missed its turn after a burst of messages: 1 in 5 runs of the SIGKILL test lost
+        # the last chunk; none with the thread.)
         self._writer_lock = threading.Lock()
+        self._pending = deque()  # (connection, stamp [ns], CDR bytes), oldest first
         self._flush_stop = threading.Event()
-        threading.Thread(target=self._flush_every, args=(cfg["flush_period"],), name="flush", daemon=True).start()
+        self._writer_thread = threading.Thread(target=self._write_loop, args=(cfg["flush_period"],),
+                                               name="writer", daemon=True)
+        self._writer_thread.start()
         self.create_timer(cfg["progress_period"], self._progress)
         # side -> LiveLag (live_lag.py), made here: made at a side's first message, its ~0.9 s of
         # imports and set-up blocked the callbacks, and a writer keeping the last 10 samples (/tf
@@ -216,6 +232,17 @@ class RecordNode(Node):
             if len(types) > 1:
                 self.get_logger().warn(f"{topic} has several types {types}; recording {types[0]}")
             self._subscribe(topic, types[0], self._qos_for(topic))
+        # A topic's channel goes into the bag as soon as a publisher of it is seen, here, rather
+        # than at its first message: adding one takes two graph queries and a log line, 2-8 ms,
+        # and the ~17 channels added at a run's first messages held every callback back 50-90 ms,
+        # which came out as that much latency in the demo's figures (taken from this node's
+        # receive times). A topic whose publisher comes too late for this gets its channel at its
+        # first message, as before.
+        for topic, conn in self.conns.items():
+            if conn is None and self.count_publishers(topic):
+                with self._writer_lock:
+                    if self.conns[topic] is None and not self._closed:
+                        self._open_connection(topic)
 
     def _subscribe(self, topic: str, msgtype: str, qos: QoSProfile) -> None:
         if not known_type(msgtype):
@@ -231,7 +258,7 @@ class RecordNode(Node):
         if cls.get_fields_and_field_types().get("header") == "std_msgs/Header":
             self.header_types.add(topic)
         self.msgtypes[topic] = msgtype
-        self.conns[topic] = None  # added with the first message, when its publishers are known
+        self.conns[topic] = None  # added once its publishers are seen (_discover) or with its first message
         self.counts[topic] = 0
         self.subs[topic] = self.create_subscription(cls, topic, self._make_callback(topic), qos, raw=True)
         self.get_logger().info(
@@ -283,9 +310,11 @@ class RecordNode(Node):
             stamp = header_stamp_ns(raw) if use_header else None
             if stamp is None:
                 stamp = self.get_clock().now().nanoseconds
-            with self._writer_lock:
-                conn = self.conns[topic] or self._open_connection(topic)
-                self.writer.write(conn, stamp, raw)
+            conn = self.conns[topic]
+            if conn is None:  # a topic whose publisher _discover has not seen yet
+                with self._writer_lock:
+                    conn = self.conns[topic] or self._open_connection(topic)
+            self._pending.append((conn, stamp, raw))
             self.counts[topic] += 1
             self.bytes += len(raw)
             if feed is not None:
@@ -313,12 +342,27 @@ class RecordNode(Node):
         except (ValueError, IndexError):
             pass  # a malformed frame: the tracking node rejects and counts it; the recorder only records
 
-    def _flush_every(self, period: float) -> None:
-        while not self._flush_stop.wait(period):
+    def _write_loop(self, period: float) -> None:
+        """Write what the callbacks took every WRITE_PERIOD s, the pending chunk to disk every
+        `period` s; once stopped, write what is left and end."""
+        next_flush = time.monotonic() + period
+        while True:
+            stopping = self._flush_stop.wait(WRITE_PERIOD)
             with self._writer_lock:
                 if self._closed:
                     return
-                flush_chunk(self.writer)
+                self._write_pending()
+                if time.monotonic() >= next_flush:
+                    flush_chunk(self.writer)
+                    next_flush = time.monotonic() + period
+            if stopping:
+                return
+
+    def _write_pending(self) -> None:
+        """Write the messages taken so far (the writer's lock held)."""
+        pending = self._pending
+        while pending:
+            self.writer.write(*pending.popleft())
 
     def _lag_reports(self, period: float) -> None:
         """One hand's live lag per period, the hands heard from taking turns (live_lag.HandLags)."""
@@ -349,7 +393,9 @@ class RecordNode(Node):
         if self.live_lag is not None:
             self._lag_stop.set()
         self._flush_stop.set()
+        self._writer_thread.join(timeout=10.0)
         with self._writer_lock:
+            self._write_pending()  # (the thread wrote them all, unless it was stuck)
             for topic, conn in self.conns.items():
                 if conn is None:  # subscribed, never received: listed with 0 messages, like rosbag2
                     self._open_connection(topic)
