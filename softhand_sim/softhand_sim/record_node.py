@@ -91,8 +91,6 @@ DEFAULT_TOPICS = [t for t in TOPIC_TYPES if t not in HEAVY_TOPICS]
 #: tracker resent (measured: 664 of 666 recorded while tracking_node received all 666).
 ADAPTIVE_TOPICS = TRACKER_TOPICS
 
-
-
 WRITE_PERIOD = 0.01  # [s] the writer thread writes the messages taken this often
 
 
@@ -170,7 +168,7 @@ class RecordNode(Node):
         # the last chunk; none with the thread.)
         self._writer_lock = threading.Lock()
         self._pending = deque()  # (connection, stamp [ns], CDR bytes), oldest first
-        self._flush_stop = threading.Event()
+        self._writer_stop = threading.Event()
         self._writer_thread = threading.Thread(target=self._write_loop, args=(cfg["flush_period"],),
                                                name="writer", daemon=True)
         self._writer_thread.start()
@@ -347,7 +345,7 @@ class RecordNode(Node):
         `period` s; once stopped, write what is left and end."""
         next_flush = time.monotonic() + period
         while True:
-            stopping = self._flush_stop.wait(WRITE_PERIOD)
+            stopping = self._writer_stop.wait(WRITE_PERIOD)
             with self._writer_lock:
                 if self._closed:
                     return
@@ -392,7 +390,7 @@ class RecordNode(Node):
             return
         if self.live_lag is not None:
             self._lag_stop.set()
-        self._flush_stop.set()
+        self._writer_stop.set()
         self._writer_thread.join(timeout=10.0)
         with self._writer_lock:
             self._write_pending()  # (the thread wrote them all, unless it was stuck)
