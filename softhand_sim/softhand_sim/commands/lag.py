@@ -406,11 +406,9 @@ def lag_report(path, hand: str = "right", time_base: str = "auto", contacts=_REA
     if layers["sim"] in data and contacts is not None:
         s, c_t = data[layers["sim"]], (contacts.stamp, contacts.recv)[col]
         free = free_air(s[col], c_t, contacts.count)
-        if free.sum() >= MIN_FREE_SAMPLES:  # its own stillness rule: what the free-air windows move
+        if free.sum() >= MIN_FREE_SAMPLES:
             ref_free = free_air(ref.t, c_t, contacts.count)
-            report["sim_free_air"] = layer_lag(ref, _sorted(s[col][free], s[2][free]),
-                                               ref_spread=spread(Series(ref.t[ref_free], ref.poses[ref_free])))
-            report["sim_free_air"]["messages"] = int(free.sum())
+            report["sim_free_air"] = _states_lag(ref, s[col], s[2], free, ref_free)
     gaps = dropouts(ref)
     report["frames"]["dropouts"] = len(gaps)
     if gaps:
@@ -423,11 +421,17 @@ def lag_report(path, hand: str = "right", time_base: str = "auto", contacts=_REA
             keep &= free_air(s[col], c_t, contacts.count)
             ref_keep &= free_air(ref.t, c_t, contacts.count)
         if keep.sum() >= MIN_FREE_SAMPLES:
-            ref_spread = spread(Series(ref.t[ref_keep], ref.poses[ref_keep]))
-            kept = _sorted(s[col][keep], s[2][keep])
-            report["sim_off_dropouts"] = layer_lag(ref, kept, ref_spread=ref_spread)
-            report["sim_off_dropouts"]["messages"] = int(keep.sum())
+            report["sim_off_dropouts"] = _states_lag(ref, s[col], s[2], keep, ref_keep)
     return report
+
+
+def _states_lag(ref: Series, t, poses, keep, ref_keep) -> dict:
+    """layer_lag of the simulated states `keep` (masks of t, poses) with their count (`messages`).
+    Its own stillness rule: what the tracked hand moves over ref_keep, the frames of those windows."""
+    ref_spread = spread(Series(ref.t[ref_keep], ref.poses[ref_keep]))
+    r = layer_lag(ref, _sorted(t[keep], poses[keep]), ref_spread=ref_spread)
+    r["messages"] = int(keep.sum())
+    return r
 
 
 def format_report(r: dict, title: str = "") -> str:
