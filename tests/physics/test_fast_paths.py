@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
-from tests.support.solver_fixtures import box_mesh, random_quat
+from tests.support.solver_fixtures import box_mesh, dense_slots, random_quat, tet_stencils
 from softhand_sim.physics import pcg
 from softhand_sim.scenarios.bench_scenes import box_hand_with_tets
 from softhand_sim.physics.energies import bone_tissue, tissue
@@ -14,10 +14,6 @@ from softhand_sim.physics.model import build_model
 from softhand_sim.physics.rotations import quat_to_matrix
 
 E_YOUNG, NU = 1e5, 0.33
-
-
-def _dense_slots(stencils, n):
-    return np.stack([st[:, None] * n + st[None, :] for st in stencils]).astype(np.int32)
 
 
 @pytest.mark.parametrize("nl_k,amp", [(0.0, 0.002), (1000.0, 0.002), (1000.0, 0.0002)])
@@ -34,7 +30,7 @@ def test_fused_tissue_matches_rotations_plus_K0_kernel(nl_k, amp):
     R = quat_to_matrix(random_quat(rng))
     x = X @ R.T + amp * rng.normal(size=X.shape)
     N, T = len(X), len(tets)
-    slots = _dense_slots([(3 * t[:, None] + np.arange(3)).ravel() for t in tets], 3 * N)
+    slots = dense_slots(tet_stencils(tets), 3 * N)
     wmax = 50.0  # low enough that the amp = 2 mm shape has tets above it
     q_ref = np.tile([0.0, 0.0, 0.0, 1.0], (T, 1))
     q_new = q_ref.copy()
@@ -74,7 +70,7 @@ def test_bone_tissue_structured_hessian_equals_dense_gauss_newton():
                       3 * N + 6 * s_body[s] + np.arange(6)] for s in range(P)]
     g, vals = np.zeros(n), np.zeros(n * n)
     e = bone_tissue.add_all(x, body_x, body_q, tets, s_tet, s_body, s_r, bary, s_k, 3 * N, g,
-                            _dense_slots(stencils, n), vals, True)
+                            dense_slots(stencils, n), vals, True)
     H_ref, g_ref, e_ref = np.zeros((n, n)), np.zeros(n), 0.0
     for s in range(P):
         b = s_body[s]

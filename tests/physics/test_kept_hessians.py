@@ -6,7 +6,7 @@ than a micrometre against the exact Hessian, free motion runs the whole kernel."
 import numpy as np
 import pytest
 
-from tests.support.solver_fixtures import box_mesh, random_quat
+from tests.support.solver_fixtures import box_mesh, dense_slots, random_quat, tet_stencils
 from softhand_sim.params import defaults
 from softhand_sim.physics.energies import tissue
 from softhand_sim.physics.rotations import quat_exp, quat_mul, quat_to_matrix
@@ -15,16 +15,11 @@ E_YOUNG, NU, WMAX = 1e5, 0.33, 50.0
 TOL = 0.01
 
 
-def _dense_slots(tets, n):
-    st = [(3 * t[:, None] + np.arange(3)).ravel() for t in tets]
-    return np.stack([s[:, None] * n + s[None, :] for s in st]).astype(np.int32)
-
-
 def _box(size, cells):
     """A tet box with its rest data: X, tets, volumes, Dm^-1, Lame's (lam, mu), dense slots."""
     X, tets = box_mesh(size, cells)
     vol, Dm_inv, _ = tissue.rest_data(X, tets, E_YOUNG, NU)
-    return X, tets, vol, Dm_inv, tissue.lame(E_YOUNG, NU), _dense_slots(tets, 3 * len(X))
+    return X, tets, vol, Dm_inv, tissue.lame(E_YOUNG, NU), dense_slots(tet_stencils(tets), 3 * len(X))
 
 
 def _kept_reference(X, tets, Dm_inv, vol, lam, mu, used_q, used_G, nl_k, slots, size):

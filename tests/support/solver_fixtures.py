@@ -41,3 +41,14 @@ def box_asset(size, cells, **fields):
 def random_quat(rng):
     q = rng.normal(size=4)
     return q / np.linalg.norm(q)
+
+
+def dense_slots(stencils, n):
+    """(E, k, k) slots of each stencil's k DOFs (k,) in a dense n x n matrix stored row by row: a
+    kernel's Hessian scattered through them lands in np.zeros(n * n)."""
+    return np.stack([st[:, None] * n + st[None, :] for st in stencils]).astype(np.int32)
+
+
+def tet_stencils(tets):
+    """Each tet's 12 DOFs (its 4 nodes' x, y, z), (T, 12)."""
+    return [(3 * t[:, None] + np.arange(3)).ravel() for t in tets]
