@@ -41,7 +41,22 @@ It is scaled by the lead's contact gate (in contact the paper's springs act alon
 MAX_ACCEL, and nil across a gap. Offline on leap_grab (a real recording) the simulated palm's lag
 fell from 27.5 to 18.6 ms, its position error p95 from 10.8 to 6.5 mm; turning the whole hand with
 the target's angular acceleration as well changed neither the phalanxes' lag nor the palm's (14.6,
-19.6 ms), so only the linear part is applied.
+19.6 ms), so only the linear part is applied. The cap was 100 m/s^2 (10 g) until the answer to a
+tracker's jump was measured: leap_grab's palm comes back 24.6 mm from where it was after a 26 ms
+dropout, and the hand followed that at the cap. Offline with the node set's transport delays,
+averaged over six phases of the frames: 100 -> 300 m/s^2 took leap_grab's palm error p95 over the
+run from 8.5 to 6.0 mm (lag 16.2 -> 15.9 ms), fast_dropout's (a 309 ms gap) from 26.8 to 21.9 mm,
+leap_roll_pitch's 6.1 -> 5.9 mm; 1000 m/s^2 gave leap_grab the same as 300.
+
+The palm's linear lead uses its own velocity: the least-squares slope of the palm's positions over
+the velocity window, unfiltered. The filtered difference (the other bones' velocity) trails a palm
+that speeds up or turns back by about the filter's time constant, and the palm carries the hand.
+It is scaled by the same noise gain as the filtered velocity would be (the filtered speed against
+the noise of the raw difference): scaled by the slope's own speed, a still palm's noise passed
+through (a still hand with 1 mm of noise: the led targets' error 14-18 % over the noise, against
+the 10 % test_target_lead allows). Offline, as above: leap_grab's palm lag over the run 15.9 ->
+14.2 ms (13.5-15.1 over the phases; off the dropouts 4.3 -> 3.3 ms), its palm error p95 6.0 ->
+6.1 mm; fast_dropout 3.8 -> 3.3 ms, 21.9 -> 19.8 mm; leap_roll_pitch 0.8 -> 0.0 ms, 5.9 -> 5.8 mm.
 """
 from __future__ import annotations
 
@@ -64,8 +79,8 @@ RAMP = 0.05            # [s] the lead's gain goes 0 <-> 1 over this time
 NOISE_TIME = 0.3       # [s] time constant of the velocity noise estimate
 NOISE_GAIN = 1.0       # each bone's lead scaled by v^2 / (v^2 + NOISE_GAIN noise^2), linear and angular
 STILL2 = np.array([1e-8, 1e-6])  # [(m/s)^2, (rad/s)^2] below 0.1 mm/s, 1 mrad/s a bone leads no more
-MAX_ACCEL = 100.0      # [m/s^2] the feed-forward acceleration's cap (10 g: a jump of the tracked
-                       # hand races the intermediate bones at hundreds of m/s^2)
+MAX_ACCEL = 300.0      # [m/s^2] the feed-forward acceleration's cap (a jump of the tracked hand
+                       # races the intermediate bones at hundreds of m/s^2; module docstring)
 NEAR_GATE = 0.02       # [m] no lead while the skin is nearer than this to an object (a 40 ms lead
                        # moves a target 2 cm at 0.5 m/s)
 
@@ -116,6 +131,15 @@ def _extrapolate(poses, vel, tau, out):
             out[b, 3 + i] = q[i]
 
 
+def _palm_slope(history, stamp, poses):
+    """(3,) least-squares slope [m/s] of the palm origin (bone 0) over the history's targets and
+    the new ones (poses at stamp)."""
+    t = np.array([h[0] for h in history] + [stamp]) - stamp
+    x = np.array([h[1][0, :3] for h in history] + [poses[0, :3]])
+    tc = t - t.mean()
+    return tc @ (x - x.mean(axis=0)) / (tc @ tc)
+
+
 def warm_up():
     """Compile (or load from numba's cache) the rotation kernels of the lead now: called by the
     runtime's warm-up step, which leads nothing (its targets have no velocity yet). Left to the
@@ -134,6 +158,7 @@ class TargetLead:
         self.poses = None
         self.stamp = None
         self.vel = None
+        self.palm_vel = None  # (3,) [m/s] the palm origin's least-squares velocity over the history
         self.noise2 = None  # (n, 2) the velocity's noise power per bone: linear, angular
         self._history = deque()  # (stamp, poses) of the last VELOCITY_WINDOW
         self.gain = 1.0
@@ -148,6 +173,7 @@ class TargetLead:
         if stamp is None or self.stamp is None or not 0.0 < stamp - self.stamp <= MAX_GAP \
                 or self.poses.shape != poses.shape:
             self.vel = None  # first targets, unstamped, reordered or after a gap: no velocity across it
+            self.palm_vel = None
             self._history.clear()
         elif self._history:
             while len(self._history) > 1 and stamp - self._history[1][0] >= VELOCITY_WINDOW:
@@ -161,6 +187,7 @@ class TargetLead:
                     beta = 1.0 - np.exp(-(stamp - self.stamp) / NOISE_TIME)
                     self.noise2 = dev2 if self.noise2 is None else self.noise2 + beta * (dev2 - self.noise2)
                 self.vel = raw if self.vel is None else self.vel + alpha * (raw - self.vel)
+                self.palm_vel = _palm_slope(self._history, stamp, poses)
         if stamp is not None:
             self._history.append((stamp, poses))
         self.poses, self.stamp = poses, stamp
@@ -192,9 +219,11 @@ class TargetLead:
         self.lead = self.gain * min(max(t_end - self.stamp, 0.0), MAX_LEAD)
         if self.lead <= 0.0:
             return self.poses
-        vel = self.vel
+        vel = self.vel.copy()
+        if self.palm_vel is not None:
+            vel[0, :3] = self.palm_vel
         if self.noise2 is not None and NOISE_GAIN > 0.0:
-            speed2 = _squared_norms(vel)
+            speed2 = _squared_norms(self.vel)
             # the floor keeps a still bone's ratio of two round-off-sized numbers out (its lead is nil)
             vel = vel * np.repeat(speed2 / (speed2 + NOISE_GAIN * self.noise2 + STILL2), 3, axis=1)
         # a jump of the tracked hand (a tracker re-acquiring it, a replay restarting) is followed

@@ -320,7 +320,7 @@ def _leap_grab_lag(**sim_overrides):
 def test_feed_forward_halves_the_simulated_lag_on_a_real_recording():
     """leap_grab through the offline pipeline at the default rate (one hand: 150 Hz): the
     simulated phalanxes trail the tracked ones by 12.5 ms without the lead and by 8.5 ms with it,
-    the palm by 24.6 ms and, with the lead and the palm target's acceleration, 13.5 ms: within
+    the palm by 24.6 ms and, with the lead and the palm target's acceleration, 11.9 ms: within
     #17's 15 ms (at 60 Hz: 23 / 32 ms without, 14.6 / 18.6 ms with); the phalanx error's median
     drops too."""
     off, on = _leap_grab_lag(target_feed_forward=False), _leap_grab_lag()
@@ -333,7 +333,7 @@ def test_feed_forward_halves_the_simulated_lag_on_a_real_recording():
 def test_the_palm_target_acceleration_cuts_the_palm_lag_on_a_real_recording():
     """leap_grab through the offline pipeline with the lead, without and with the palm target's
     acceleration on the hand's masses (target_acceleration), at the default rate (150 Hz): the
-    simulated palm's lag 19.9 -> 13.5 ms, its position error p95 14.8 -> 5.7 mm (at 60 Hz 27.5 ->
+    simulated palm's lag 19.2 -> 11.9 ms, its position error p95 14.9 -> 5.7 mm (at 60 Hz 27.5 ->
     18.6 ms, 10.8 -> 6.5 mm); the phalanxes' lag and error stay (the load is the same on every
     mass: it moves the hand, it does not bend it)."""
     off, on = _leap_grab_lag(target_acceleration=False), _leap_grab_lag()
