@@ -261,6 +261,34 @@ def test_a_moving_hand_keeps_its_lead_through_small_noise():
     assert np.mean(led) < 0.25 * np.mean(held)
 
 
+def test_the_palm_leads_with_its_own_velocity_through_a_turn():
+    """The palm (bone 0) and a second bone swinging together, 4 cm at 2 Hz along x, targets every 4
+    ms led 17 ms ahead: the palm, led with the least-squares slope of its last 20 ms, is nearer to
+    where it will be than the second bone, led with the low-pass filtered 20 ms difference, which
+    trails the turns (measured: 1.87 against 2.73 mm RMS; before the palm had its own velocity the
+    two were the same); both are nearer than the targets as they came (6.02 mm)."""
+    def poses(t):
+        p = np.tile([0.0, 0.0, 0.8, 0.0, 0.0, 0.0, 1.0], (2, 1))
+        p[:, 0] += 0.04 * np.sin(2.0 * np.pi * 2.0 * t)
+        p[1, 1] += 0.05
+        return p
+
+    lead = TargetLead()
+    palm, other, held = [], [], []
+    for k in range(300):
+        t = 0.004 * k
+        lead.on_target(poses(t), t)
+        if k > 50:
+            want = poses(t + 0.017)[:, 0]
+            got = lead.targets_at(t + 0.017)[:, 0]
+            palm.append(got[0] - want[0])
+            other.append(got[1] - want[1])
+            held.append(poses(t)[0, 0] - want[0])
+    rms = [1e3 * np.sqrt(np.mean(np.square(e))) for e in (palm, other, held)]
+    print("led palm, led second bone, unled [mm RMS]:", np.round(rms, 2))
+    assert rms[0] < 0.75 * rms[1] and rms[1] < rms[2]
+
+
 def test_a_jump_of_the_targets_is_not_led_further_than_max_shift():
     """Targets that race 10 cm in 8 ms (the intermediate bones catching up with a tracker jump):
     the led targets stay within MAX_SHIFT of the targets as they came."""
