@@ -16,10 +16,10 @@ watched live (the Foxglove layout plots it) as well as measured afterwards.
 A lag is only defined while the hand moves: a window in which the tracked phalanx directions spread
 less than MIN_TURN_RAD from their mean reports NaN, and likewise the palm's lag when the palm
 spreads less than MIN_TRAVEL_M (commands/lag.py's rule and `spread`, which a whole recording's
-lag follows too). The intermediate (250 Hz) and simulated (150 Hz for one hand) layers are kept at
+lag follows too). The intermediate (250 Hz) and simulated (200 Hz for one hand) layers are kept at
 LAYER_HZ: the search interpolates the tracked frames at each kept sample's time, so fewer samples
 still give the lag to the millisecond, and the cost of a report follows the samples kept: on the
-demo's recording (one hand, the simulated layer at 150 Hz) a report took 70-96 ms of the
+demo's recording (one hand, the simulated layer then at 150 Hz) a report took 70-96 ms of the
 recorder's CPU with that layer kept whole, 53-56 ms thinned. `wants` lets the recorder skip a
 thinned sample before it parses the message (36 instead of 54 us per message fed).
 

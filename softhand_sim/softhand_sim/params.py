@@ -62,7 +62,7 @@ _PAPER = "paper Sect. 5.1"
 # names as they are; build_model(asset, {key: value}) takes any of them.
 SIM = {
     "sim_rate": P(float, 0.0, "Hz", "full-simulation step rate; dt = 1/sim_rate (the paper reaches 45-65 steps/s); "
-                  "0 = by hand count: 150 Hz for one hand (lag and latency, README 'Following without lag'), "
+                  "0 = by hand count: 200 Hz for one hand (lag and latency, README 'Following without lag'), "
                   "50 Hz for two (what two hands keep on two cores beside the other nodes); else 10-2000", 0, 2000),
     "max_step": P(float, 0.0, "s", "keep real time when the machine cannot keep sim_rate: a late tick steps the time "
                   "since the previous one, up to this long (0 or <= 1/sim_rate: always 1/sim_rate, and an overloaded "
@@ -346,14 +346,15 @@ def check_value(node: str, key: str, value, schema=None):
     return value
 
 
-# sim_rate 0: the rate by hand count. One hand at 150 Hz follows at about the 15 ms lag goal
-# (leap_grab's palm 13.5 ms offline, 15.0-17.7 through the nodes; at 60 Hz 18.6 and 23.5) with a
-# latency p99 of 7-11 ms where its step fits the period; two hands at 150 Hz do not fit on two
-# cores. They stepped at 60 Hz until the machine ran slower: then the two-hand demos overran 6-12 %
-# of their ticks at 60 Hz (52-55 steps/s) and 0.5-5.8 % at 50 (README, "Two hands"), so two hands
-# keep 50. 100-120 Hz is avoided: around the Leap's 113 frames/s the palm error p95 rises to 9-14 mm
-# (5.5-6 mm at 125-167 Hz; README, "Following without lag").
-AUTO_SIM_RATE = {1: 150.0, 2: 50.0}  # hands -> Hz
+# sim_rate 0: the rate by hand count. One hand steps at 200 Hz: through the node set its step is
+# shorter than at 150 (1.5-2.3 ms p50 against 1.9-2.7: smaller steps leave CG less to do) and a
+# tracker frame waits at most 5 ms for the next one, so the tracker -> bones latency p99 was 5.5-9.9
+# ms in nine demos (150 Hz: 7.6-15.2 ms, over 10 in 4 of 11 bags) and leap_grab's palm lag 11.7-11.9
+# ms (150 Hz: 12.7-14.2; the goal is 15); README, "Following without lag". Two hands at these rates
+# do not fit on two cores. They stepped at 60 Hz until the machine ran slower: then the two-hand
+# demos overran 6-12 % of their ticks at 60 Hz (52-55 steps/s) and 0.5-5.8 % at 50 (README, "Two
+# hands"), so two hands keep 50.
+AUTO_SIM_RATE = {1: 200.0, 2: 50.0}  # hands -> Hz
 
 
 def sim_rate_hz(params, n_hands: int) -> float:

@@ -69,7 +69,7 @@ def build_parser():
                     "/hand/contact_markers, /tf and /diagnostics. Parameters (defaults in "
                     "config/softhand.yaml, list with `softhand params sim_node`) are set with --ros-args "
                     "-p key:=value or --params-file FILE.",
-        epilog="example: softhand-sim --ros-args -p sim_rate:=60.0 -p \"hands:=[right, left]\" (sim_rate 0, the default: 150 Hz for one hand, 50 Hz for two)",
+        epilog="example: softhand-sim --ros-args -p sim_rate:=60.0 -p \"hands:=[right, left]\" (sim_rate 0, the default: 200 Hz for one hand, 50 Hz for two)",
     )
 
 

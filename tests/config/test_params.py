@@ -137,17 +137,17 @@ def test_every_parameter_is_read(node):
 
 
 def test_sim_rate_by_hand_count():
-    """sim_rate 0 (the default) is 150 Hz for one hand and 50 Hz for two (README, "Following
+    """sim_rate 0 (the default) is 200 Hz for one hand and 50 Hz for two (README, "Following
     without lag"); a rate given is kept for any hand count; 0 < rate < 10 Hz is refused by name,
     and the runtime's params carry the rate it steps at."""
     from softhand_sim.params import sim_rate_hz
     from softhand_sim.runtime import SimRuntime
     p = defaults("sim_node")
     assert p["sim_rate"] == 0.0
-    assert sim_rate_hz(p, 1) == 150.0 and sim_rate_hz(p, 2) == 50.0
+    assert sim_rate_hz(p, 1) == 200.0 and sim_rate_hz(p, 2) == 50.0
     assert sim_rate_hz({**p, "sim_rate": 90.0}, 1) == 90.0 == sim_rate_hz({**p, "sim_rate": 90.0}, 2)
     with pytest.raises(ParamError, match="sim_rate.*5.0"):
         sim_rate_hz({**p, "sim_rate": 5.0}, 1)
     with pytest.raises(ParamError, match="sim_rate"):
         load_params("sim_node", overrides={"sim_rate": -1.0})
-    assert SimRuntime(p).params["sim_rate"] == 150.0 and p["sim_rate"] == 0.0  # the caller's dict untouched
+    assert SimRuntime(p).params["sim_rate"] == 200.0 and p["sim_rate"] == 0.0  # the caller's dict untouched

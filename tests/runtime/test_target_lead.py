@@ -346,11 +346,11 @@ def _leap_grab_lag(**sim_overrides):
 
 @pytest.mark.slow
 def test_feed_forward_halves_the_simulated_lag_on_a_real_recording():
-    """leap_grab through the offline pipeline at the default rate (one hand: 150 Hz): the
-    simulated phalanxes trail the tracked ones by 12.5 ms without the lead and by 8.5 ms with it,
-    the palm by 24.6 ms and, with the lead and the palm target's acceleration, 11.9 ms: within
-    #17's 15 ms (at 60 Hz: 23 / 32 ms without, 14.6 / 18.6 ms with); the phalanx error's median
-    drops too."""
+    """leap_grab through the offline pipeline at the default rate (one hand: 200 Hz): the
+    simulated phalanxes trail the tracked ones by 12.0 ms without the lead and by 8.7 ms with it,
+    the palm by 24.4 ms and, with the lead and the palm target's acceleration, 11.4 ms: within
+    #17's 15 ms (at 150 Hz 12.5 / 24.6 and 8.5 / 11.9 ms; at 60 Hz, before the palm's own velocity,
+    23 / 32 ms without, 14.6 / 18.6 ms with); the phalanx error's median drops too."""
     off, on = _leap_grab_lag(target_feed_forward=False), _leap_grab_lag()
     assert off["lag_phalanx_ms"] > 11.0 and on["lag_phalanx_ms"] < 10.0
     assert off["lag_palm_ms"] > 20.0 and on["lag_palm_ms"] < 15.0
@@ -360,10 +360,11 @@ def test_feed_forward_halves_the_simulated_lag_on_a_real_recording():
 @pytest.mark.slow
 def test_the_palm_target_acceleration_cuts_the_palm_lag_on_a_real_recording():
     """leap_grab through the offline pipeline with the lead, without and with the palm target's
-    acceleration on the hand's masses (target_acceleration), at the default rate (150 Hz): the
-    simulated palm's lag 19.2 -> 11.9 ms, its position error p95 14.9 -> 5.7 mm (at 60 Hz 27.5 ->
-    18.6 ms, 10.8 -> 6.5 mm); the phalanxes' lag and error stay (the load is the same on every
-    mass: it moves the hand, it does not bend it)."""
+    acceleration on the hand's masses (target_acceleration), at the default rate (200 Hz): the
+    simulated palm's lag 20.1 -> 11.4 ms, its position error p95 18.1 -> 6.5 mm (at 150 Hz 19.2 ->
+    11.9 ms, 14.9 -> 5.7 mm; at 60 Hz, before the palm's own velocity, 27.5 -> 18.6 ms, 10.8 -> 6.5
+    mm); the phalanxes' lag and error stay (the load is the same on every mass: it moves the hand,
+    it does not bend it)."""
     off, on = _leap_grab_lag(target_acceleration=False), _leap_grab_lag()
     assert off["lag_palm_ms"] > 18.0 and on["lag_palm_ms"] < 15.0
     assert on["palm_mm"]["p95"] < 0.75 * off["palm_mm"]["p95"]

@@ -13,7 +13,7 @@ config/softhand.yaml, `softhand_sim.params.load_params`):
   become the sim's bone targets at once (sim_node keeps the latest). With hands=[right, left]
   (a two-hand bag) one loop per hand, as one tracking node each, the frames of both on the bag's
   one timeline;
-* sim_node: `SimRuntime.step(dt, t)` at `sim_rate` (0: 150 Hz for one hand, 60 for two). Its outputs (state at t + dt) are
+* sim_node: `SimRuntime.step(dt, t)` at `sim_rate` (0: 200 Hz for one hand, 50 for two). Its outputs (state at t + dt) are
   delivered `sim_latency` [s] after the step starts (default: one sim period, the worst case of a
   node whose step takes its whole period): /hand/bones -> loop.on_sim_bones, /hand/object_states
   -> world.set_copy stamped with the state time t + dt (as world_node takes the header stamp);
