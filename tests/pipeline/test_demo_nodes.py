@@ -122,7 +122,8 @@ def check_single_hand_run(out, summary):
 # Through the nodes: grasp_lift (the demo's bag, below) and press_table (skin against the table).
 # pinch_lift, squeeze and fast_dropout are left out for the suite's time (30-40 s each): their
 # motions are the offline grasp and pinch tests' and tracking_node's dropout test's, and through
-# the nodes they make the same generic checks.
+# the nodes they make the same generic checks. That every bag's frames are all recorded, received
+# and accepted is test_every_bag_replayed's (every sample bag, without the sim and world nodes).
 def test_press_table_through_the_nodes(tmp_path):
     """press_table with the skin recorded: the generic checks, and no skin vertex deeper than 5 mm
     in the table while the tracked hand goes 3 cm into it."""
