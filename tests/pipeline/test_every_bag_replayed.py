@@ -9,19 +9,14 @@ from softhand_sim.commands.demo import bag_sides
 from softhand_sim.commands.run_summary import input_frames
 from softhand_sim.paths import bags_dir
 from softhand_sim.ros.bagio import topic_counts
-from softhand_sim.ros.msgs import diagnostic_values, status_node
 from softhand_sim.topics import tracker_topic
-from tests.support.rosproc import RosGraph
+from tests.support.rosproc import RosGraph, node_diagnostics
 
 pytestmark = [pytest.mark.ros]
 
 NODES = {"right": "tracking_node", "left": "tracking_node_left"}
 RATE = 4.0  # four times the recorded speed: the 13 bags' ~110 s in ~28 s (56 s with the starts), and
             # a harder test of the QoS than the recorded rate (up to ~450 frames a second)
-
-
-def _diag(msgs, node):
-    return [diagnostic_values(st) for m in msgs for st in m.status if status_node(st.name) == node]
 
 
 def test_every_frame_of_every_sample_bag_is_recorded_received_and_accepted(ros_env, tmp_path):
@@ -41,7 +36,8 @@ def test_every_frame_of_every_sample_bag_is_recorded_received_and_accepted(ros_e
         record = g.start(["softhand-record", "--ros-args", "-p", f"output:={tmp_path / 'bag'}",
                           "-p", "live_lag:=false"])
         for side, name in NODES.items():
-            g.wait_until(lambda: _diag(diags.msgs, name), 60, f"/diagnostics of {name}", nodes[side])
+            g.wait_until(lambda: node_diagnostics(diags.msgs, name), 60, f"/diagnostics of {name}",
+                         nodes[side])
         for bag in bags:
             wait = [NODES[side] for side in bag_sides(bag)] + ["record_node"]
             play = g.start(["softhand-play", str(bag), "--rate", str(RATE), "--wait-for-nodes", *wait])
@@ -50,7 +46,7 @@ def test_every_frame_of_every_sample_bag_is_recorded_received_and_accepted(ros_e
                 want[side] += n
 
         def settled(name, n):
-            got = _diag(diags.msgs, name)
+            got = node_diagnostics(diags.msgs, name)
             return got and int(got[-1]["frames_received"]) >= n
 
         for side, name in NODES.items():
@@ -59,7 +55,7 @@ def test_every_frame_of_every_sample_bag_is_recorded_received_and_accepted(ros_e
             assert proc.stop() == 0, proc.output()
     recorded = topic_counts(tmp_path / "bag")
     for side, name in NODES.items():
-        last = _diag(diags.msgs, name)[-1]
+        last = node_diagnostics(diags.msgs, name)[-1]
         print(side, want[side], "frames in the bags;", recorded.get(tracker_topic(side)), "recorded;",
               {k: last[k] for k in ("frames_received", "frames_accepted", "frames_rejected")})
         assert recorded.get(tracker_topic(side)) == want[side]

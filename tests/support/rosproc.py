@@ -41,6 +41,13 @@ LISTEN_QOS = QoSProfile(history=PUB_QOS.history, depth=1000, reliability=PUB_QOS
 VENV_BIN = Path(__file__).resolve().parents[2] / ".venv" / "bin"
 
 
+def node_diagnostics(msgs, node: str) -> list:
+    """The /diagnostics values (dicts) of `node`'s statuses in the DiagnosticArray messages `msgs`,
+    oldest first."""
+    from softhand_sim.ros.msgs import diagnostic_values, status_node
+    return [diagnostic_values(st) for m in msgs for st in m.status if status_node(st.name) == node]
+
+
 class RosProc:
     """One node subprocess; output in a temp file; stop() sends a signal and returns the exit code."""
 

@@ -12,13 +12,12 @@ from geometry_msgs.msg import PoseArray
 
 from rclpy.serialization import serialize_message
 
-from tests.support.rosproc import RosGraph
+from tests.support.rosproc import RosGraph, node_diagnostics
 from softhand_sim.ros.bagio import write_bag
-from softhand_sim.ros.msgs import diagnostic_values, pose_array_from_numpy, pose_array_to_numpy, stamp_to_seconds
+from softhand_sim.ros.msgs import pose_array_from_numpy, pose_array_to_numpy, stamp_to_seconds
 from softhand_sim.scenarios.tracker_bags import sample
 from softhand_sim.topics import hand_topic, tracker_topic
 from softhand_tracking.adapter import AdapterConfig, TrackerAdapter, mirror_poses
-from softhand_sim.ros.msgs import status_node
 
 # Timing over real DDS between processes on a shared 2-core machine: one retry absorbs a stall.
 pytestmark = [pytest.mark.ros, pytest.mark.slow, pytest.mark.flaky(reruns=1, reruns_delay=2)]
@@ -32,12 +31,7 @@ FOLLOW_BOUND = 0.08
 
 
 def _tracking_diag(msgs, node="tracking_node"):
-    out = []
-    for m in msgs:
-        for st in m.status:
-            if status_node(st.name) == node:
-                out.append(diagnostic_values(st))
-    return out
+    return node_diagnostics(msgs, node)
 
 
 def test_fast_dropout_bag_through_tracking_node(ros_env):
