@@ -403,23 +403,19 @@ def lag_report(path, hand: str = "right", time_base: str = "auto", contacts=_REA
             s = data[topic]
             report[name] = layer_lag(ref, _sorted(s[col], s[2]), ref_spread=ref_spread)
             report[name]["messages"] = int(len(s[0]))
-    if layers["sim"] in data and contacts is not None:
-        s, c_t = data[layers["sim"]], (contacts.stamp, contacts.recv)[col]
-        free = free_air(s[col], c_t, contacts.count)
+    s = data.get(layers["sim"])
+    free = ref_free = True  # without /hand/contacts every state counts as free (the masks below)
+    if s is not None and contacts is not None:
+        c_t = (contacts.stamp, contacts.recv)[col]
+        free, ref_free = free_air(s[col], c_t, contacts.count), free_air(ref.t, c_t, contacts.count)
         if free.sum() >= MIN_FREE_SAMPLES:
-            ref_free = free_air(ref.t, c_t, contacts.count)
             report["sim_free_air"] = _states_lag(ref, s[col], s[2], free, ref_free)
     gaps = dropouts(ref)
     report["frames"]["dropouts"] = len(gaps)
     if gaps:
         report["dropouts"] = gaps
-    if gaps and layers["sim"] in data:
-        s = data[layers["sim"]]
-        keep, ref_keep = off_dropouts(s[col], gaps), off_dropouts(ref.t, gaps)
-        if contacts is not None:
-            c_t = (contacts.stamp, contacts.recv)[col]
-            keep &= free_air(s[col], c_t, contacts.count)
-            ref_keep &= free_air(ref.t, c_t, contacts.count)
+    if gaps and s is not None:
+        keep, ref_keep = off_dropouts(s[col], gaps) & free, off_dropouts(ref.t, gaps) & ref_free
         if keep.sum() >= MIN_FREE_SAMPLES:
             report["sim_off_dropouts"] = _states_lag(ref, s[col], s[2], keep, ref_keep)
     return report
