@@ -1,5 +1,7 @@
 """The whole pipeline offline (softhand_sim/softhand_sim/commands/offline.py: bag -> adapter -> 250 Hz loop -> 60 Hz
 sim <-> 120 Hz pybullet world, no ROS) on the sample bags: pressing the table, grasping the ball."""
+import time
+
 import numpy as np
 import pytest
 
@@ -38,12 +40,17 @@ def test_press_table_forces_bounded(press):
 
 
 def test_offline_pipeline_is_deterministic():
-    """Two runs of the same bag segment give identical records (event order fixed, no clocks)."""
+    """Two runs of the same bag segment give identical records (event order fixed, no clocks),
+    the second in real time (`--realtime`: each event waits for its time on the wall clock, so
+    the run takes the segment's 1.2 s at least; the waits change nothing else)."""
     a = run_pipeline("grasp_short", until=1.2)
-    b = run_pipeline("grasp_short", until=1.2)
+    start = time.perf_counter()
+    b = run_pipeline("grasp_short", until=1.2, realtime=True)
+    assert time.perf_counter() - start >= 1.2
     np.testing.assert_array_equal(a.t, b.t)
     np.testing.assert_array_equal(a.palm, b.palm)
     np.testing.assert_array_equal(a.ball_engine, b.ball_engine)
+    assert len(b.step_ms) == len(b.t) and np.all(b.step_ms > 0.0)
 
 
 def test_grasp_short_lifts_holds_and_drops_the_ball():

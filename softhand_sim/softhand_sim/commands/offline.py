@@ -22,9 +22,11 @@ config/softhand.yaml, `softhand_sim.params.load_params`):
   which on an idle machine is the same time).
 
 Events are processed in time order (ties: tracker frame, loop step, world step, sim output, sim
-step), so a run is a pure function of its inputs. Records, per sim step: engine and hand-side
-ball pose, the ball in the palm frame, contacts with the ball and their total force, the lowest
-skin point near a point of interest, the tracked palm.
+step), so a run is a pure function of its inputs. `--realtime` (realtime=True) keeps that order and
+only waits for each event's time on the wall clock, so the sim steps after idle time as sim_node's
+do: the runtime's step time with and without that wait, in one process, no ROS. Records, per sim
+step: engine and hand-side ball pose, the ball in the palm frame, contacts with the ball and their
+total force, the lowest skin point near a point of interest, the tracked palm.
 """
 from __future__ import annotations
 
@@ -96,6 +98,7 @@ class PipelineResult:
     skin_min_z: np.ndarray       # (n,) lowest skin vertex [m]
     rejected_steps: int = 0
     cg_iters: np.ndarray = field(default=None)
+    step_ms: np.ndarray = field(default=None)  # (n,) wall time of each SimRuntime.step [ms]
     ball_z0: float = 0.0
 
     def held_mask(self, min_contacts=3):
@@ -132,7 +135,7 @@ class PipelineResult:
 
 def run_pipeline(bag=None, synth=None, until=None, sim_latency=None, sim_overrides=None,
                  world_overrides=None, tracking_overrides=None, params_file=None, progress=None, asset=None,
-                 hands=None, track_object="ball"):
+                 hands=None, track_object="ball", realtime=False):
     """Run the pipeline over a bag (or synth scenario) until `until` [s] (default: end + 2 s).
     asset: the HandAsset to simulate (default: the sim_node parameters' hand). The hand is the
     tracking parameters' `hand` (tracking_overrides={"hand": "left"} runs a left-hand bag): its
@@ -140,7 +143,12 @@ def run_pipeline(bag=None, synth=None, until=None, sim_latency=None, sim_overrid
     two-hand bag (a bag only; one tracking loop per hand, as one tracking node each, on the bag's
     one timeline). The records' object (the `ball_*` fields, in the first hand's palm frame) is
     `track_object`. Without a params_file, a bag's own params.yaml (the node parameters its scene
-    needs, as `softhand demo` passes them) is read when it has one."""
+    needs, as `softhand demo` passes them) is read when it has one.
+
+    realtime: each event waits for its time on the wall clock (from the run's start), as the
+    nodes' timers do, instead of following the one before at once; the run then takes as long
+    as the bag, and every sim step comes after the idle time a node's step comes after (the
+    step's wall time in `step_ms` is then sim_node's `step_ms`, without the other nodes)."""
     if params_file is None and bag is not None:
         params_file = bag_params_file(bag)
     sp = load_params("sim_node", params_file, sim_overrides)
@@ -190,12 +198,19 @@ def run_pipeline(bag=None, synth=None, until=None, sim_latency=None, sim_overrid
     push(0.0, _LOOP, 0)
     push(world.dt, _WORLD, 1)
     push(0.0, _SIM, 0)
-    rec = {k: [] for k in ("t", "be", "bh", "bp", "palm", "tp", "bc", "bf", "bfn", "oc", "of", "mpf", "skz", "cg")}
+    rec = {k: [] for k in ("t", "be", "bh", "bp", "palm", "tp", "bc", "bf", "bfn", "oc", "of", "mpf", "skz", "cg",
+                           "ms")}
     world_state = world.states()
+    clock = time.perf_counter
+    wall0 = clock()
     while events:
         t, kind, _, payload = heapq.heappop(events)
         if t > end + 1e-9:
             break
+        if realtime:
+            wait = wall0 + t - clock()
+            if wait > 0.0:
+                time.sleep(wait)
         if kind == _FRAME:
             side, i = payload
             loops[side].on_tracker(frames[side][1][i], t, t)
@@ -219,7 +234,9 @@ def run_pipeline(bag=None, synth=None, until=None, sim_latency=None, sim_overrid
             for j, name in enumerate(names):
                 world.set_copy(name, poses[j], twists[j], accels[j], out_t)
         elif kind == _SIM:
+            t_step = clock()
             out = runtime.step(sim_dt, t)
+            step_ms = 1e3 * (clock() - t_step)
             push((payload + 1) * sim_dt, _SIM, payload + 1)
             if out is None:
                 continue
@@ -248,6 +265,7 @@ def run_pipeline(bag=None, synth=None, until=None, sim_latency=None, sim_overrid
             rec["mpf"].append(float(np.linalg.norm(c["forces"], axis=1).max()) if len(c["forces"]) else 0.0)
             rec["skz"].append(float(out.skin_vertices[:, 2].min()))
             rec["cg"].append(out.stats.cg_iters)
+            rec["ms"].append(step_ms)
             if progress is not None:
                 progress(out)
     world.close()
@@ -255,7 +273,7 @@ def run_pipeline(bag=None, synth=None, until=None, sim_latency=None, sim_overrid
     return PipelineResult(t=a["t"], ball_engine=a["be"], ball_hand=a["bh"], ball_in_palm=a["bp"], palm=a["palm"],
                           tracked_palm=a["tp"], ball_contacts=a["bc"], ball_force=a["bf"], ball_force_normal=a["bfn"],
                           other_contacts=a["oc"], other_force=a["of"], max_point_force=a["mpf"], skin_min_z=a["skz"],
-                          rejected_steps=runtime.rejected_steps, cg_iters=a["cg"],
+                          rejected_steps=runtime.rejected_steps, cg_iters=a["cg"], step_ms=a["ms"],
                           ball_z0=float(scene.objects[[o.name for o in scene.objects].index(track_object)].pose[2]))
 
 
@@ -286,6 +304,10 @@ def main(argv=None):
     ap.add_argument("--params-file", default=None,
                     help="ROS params file of the nodes' parameters (default: the bag's params.yaml if it has one)")
     ap.add_argument("--json", help="write the summary here")
+    ap.add_argument("--realtime", action="store_true",
+                    help="run at the bag's own speed, each event at its time on the wall clock as the "
+                         "nodes run (default: as fast as it computes); the summary's step_ms_p50 / "
+                         "_p99 are then the sim step after a node's idle time between steps")
     args = ap.parse_args(argv)
     if args.hands and len(set(args.hands)) != len(args.hands):
         ap.error(f"--hands names a side twice: {args.hands}")
@@ -293,7 +315,8 @@ def main(argv=None):
     r = run_pipeline(None if args.synth else args.bag, synth=args.bag if args.synth else None, until=args.until,
                      sim_latency=args.latency, sim_overrides=_overrides(args.sim),
                      world_overrides=_overrides(args.world), tracking_overrides=_overrides(args.tracking),
-                     hands=args.hands, track_object=args.object, params_file=args.params_file)
+                     hands=args.hands, track_object=args.object, params_file=args.params_file,
+                     realtime=args.realtime)
     print(" t[s]  ball_z[mm] lift  hand_z  palm_z track_z  in_palm(x,y,z)[mm]   nC  F[N]  Fn[N] other skin_min_z")
     next_print = 0.0
     for i, t in enumerate(r.t):
@@ -306,6 +329,11 @@ def main(argv=None):
                   f"{r.ball_force_normal[i]:6.2f} {r.other_contacts[i]:4d} {1e3 * r.skin_min_z[i]:7.1f}")
     s = r.summary()
     s["wall_s"] = round(time.monotonic() - t0, 1)
+    # the runtime's step as sim_node times it (`step_ms_p50` in /diagnostics and the demo summary);
+    # the first steps compile and fill the caches
+    ms = r.step_ms[5:] if len(r.step_ms) > 5 else r.step_ms
+    s["step_ms_p50"], s["step_ms_p99"] = round(float(np.median(ms)), 3), round(float(np.percentile(ms, 99)), 3)
+    s["realtime"] = bool(args.realtime)
     print(json.dumps(s, indent=1))
     if args.json:
         Path(args.json).write_text(json.dumps(s, indent=1))
