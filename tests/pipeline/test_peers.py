@@ -9,10 +9,9 @@ import pytest
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseArray
 
-from tests.support.rosproc import RosGraph
+from tests.support.rosproc import RosGraph, latest_node_diagnostics, node_diagnostics
 from softhand_sim.ros import msgs as rm
 from softhand_sim.paths import bags_dir
-from softhand_sim.ros.msgs import status_node
 from softhand_sim.scene import load_scene
 
 # Timing over real DDS between processes on a shared 2-core machine: one retry absorbs a stall.
@@ -30,14 +29,10 @@ class Status:
         self.col = collector
 
     def latest(self, name):
-        for m in reversed(self.col.msgs):
-            for st in m.status:
-                if status_node(st.name) == name:
-                    return rm.diagnostic_values(st)
-        return None
+        return latest_node_diagnostics(self.col.msgs, name)
 
     def count(self, name):
-        return sum(status_node(st.name) == name for m in self.col.msgs for st in m.status)
+        return len(node_diagnostics(self.col.msgs, name))
 
     def fresh(self, g, name, pred, timeout, what, proc=None):
         """Wait for a status of `name` sent from now on that satisfies pred(values); return it."""

@@ -24,7 +24,7 @@ from shape_msgs.msg import Mesh
 from std_msgs.msg import String
 from trajectory_msgs.msg import MultiDOFJointTrajectory
 
-from tests.support.rosproc import RosGraph
+from tests.support.rosproc import RosGraph, node_diagnostics
 from softhand_sim.ros import msgs as rm
 from softhand_sim.record_node import ADAPTIVE_TOPICS, DEFAULT_TOPICS, header_stamp_ns
 from softhand_sim.topics import LEGACY_TRACKER, TOPIC_TYPES
@@ -226,8 +226,7 @@ def test_offered_qos_type_hash_and_distro_like_rosbag2(ros_env, tmp_path):
 
 def _recorded_count(diags) -> int:
     """The last `messages` count record_node reported on /diagnostics (0 before its first)."""
-    counts = [int(rm.diagnostic_values(st)["messages"]) for m in list(diags.msgs) for st in m.status
-              if rm.status_node(st.name) == "record_node"]
+    counts = [int(v["messages"]) for v in node_diagnostics(diags.msgs, "record_node")]
     return counts[-1] if counts else 0
 
 

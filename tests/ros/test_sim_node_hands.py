@@ -24,7 +24,7 @@ from softhand_sim.ros import msgs as rm
 from softhand_sim.ros.common import LATCHED_QOS, PUB_QOS
 from softhand_sim.ros.tf import bone_frames, tf_message_class
 from softhand_sim.topics import SIDES, hand_topic
-from tests.support.rosproc import Collector, RosGraph
+from tests.support.rosproc import Collector, RosGraph, latest_node_diagnostics
 
 pytestmark = [pytest.mark.ros, pytest.mark.flaky(reruns=1, reruns_delay=2)]  # real DDS on 2 shared cores
 
@@ -59,11 +59,7 @@ def raw_listener(g, topic, msg_type, qos=PUB_QOS):
 
 
 def sim_values(diag):
-    for m in reversed(diag.msgs):
-        for st in m.status:
-            if rm.status_node(st.name) == "sim_node":
-                return rm.diagnostic_values(st)
-    return None
+    return latest_node_diagnostics(diag.msgs, "sim_node")
 
 
 def test_two_hands_publish_per_side(ros_env):

@@ -8,8 +8,7 @@ from geometry_msgs.msg import PoseArray
 from softhand_sim.commands.offline import read_frames
 from softhand_sim.handmodel.fit import fit_measures, hand_length
 from softhand_sim.paths import bags_dir
-from softhand_sim.ros import msgs as rm
-from tests.support.rosproc import RosGraph
+from tests.support.rosproc import RosGraph, latest_node_diagnostics, node_diagnostics
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow, pytest.mark.flaky(reruns=1, reruns_delay=2)]
 
@@ -17,11 +16,7 @@ ARGS = ["--ros-args", "-p", "diagnostics_rate:=4.0"]
 
 
 def latest(col, name):
-    for m in reversed(col.msgs):
-        for st in m.status:
-            if rm.status_node(st.name) == name:
-                return rm.diagnostic_values(st)
-    return None
+    return latest_node_diagnostics(col.msgs, name)
 
 
 def test_sim_node_sizes_the_hand_on_the_first_second(ros_env):
@@ -54,8 +49,7 @@ def test_sim_node_sizes_the_hand_on_the_first_second(ros_env):
         v = latest(diag, "sim_node")
         print("sim_node after sizing:", {k: v[k] for k in ("hand_measures_source", "hand_length_mm", "palm_length_mm",
                                                            "palm_width_mm", "steps")}, "expected", round(expected, 1))
-        building = [rm.diagnostic_values(st) for m in diag.msgs for st in m.status
-                    if rm.status_node(st.name) == "sim_node" and rm.diagnostic_values(st).get("hand_size_state") == "building"]
+        building = [v for v in node_diagnostics(diag.msgs, "sim_node") if v.get("hand_size_state") == "building"]
         print(f"{len(building)} sim_node /diagnostics while the hand was being made (20 Hz)")
         assert len(building) >= 2  # the node kept spinning while the worker made the hand
         assert v["hand_measures_source"] == "auto"

@@ -42,10 +42,20 @@ VENV_BIN = Path(__file__).resolve().parents[2] / ".venv" / "bin"
 
 
 def node_diagnostics(msgs, node: str) -> list:
-    """The /diagnostics values (dicts) of `node`'s statuses in the DiagnosticArray messages `msgs`,
-    oldest first."""
+    """The /diagnostics values (dicts) of `node`'s statuses in the DiagnosticArray messages `msgs`
+    (a collector's list, read as it stands: a spinning thread may append), oldest first."""
     from softhand_sim.ros.msgs import diagnostic_values, status_node
-    return [diagnostic_values(st) for m in msgs for st in m.status if status_node(st.name) == node]
+    return [diagnostic_values(st) for m in list(msgs) for st in m.status if status_node(st.name) == node]
+
+
+def latest_node_diagnostics(msgs, node: str):
+    """The newest /diagnostics values (dict) of `node` in `msgs`, or None before its first."""
+    from softhand_sim.ros.msgs import diagnostic_values, status_node
+    for m in reversed(list(msgs)):
+        for st in m.status:
+            if status_node(st.name) == node:
+                return diagnostic_values(st)
+    return None
 
 
 class RosProc:

@@ -13,11 +13,10 @@ from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import Pose, PoseArray
 from rclpy.serialization import deserialize_message, serialize_message
 
-from tests.support.rosproc import RosGraph
+from tests.support.rosproc import RosGraph, latest_node_diagnostics, node_diagnostics
 from softhand_sim.ros import msgs as rm
 from softhand_tracking.adapter import _SEG_DIST, _SEG_PROX
 from softhand_sim.scenarios.tracker_bags import sample
-from softhand_sim.ros.msgs import status_node
 from softhand_sim.topics import hand_topic, tracker_topic
 
 PACED_HZ = 100.0   # categorized bad frames, paced (valid and bad alternate)
@@ -102,19 +101,11 @@ REASON = {"joint_count": "joint_count", "non_finite": "non_finite", "huge": "out
 
 
 def tracking_diag(diags):
-    for m in reversed(diags.msgs):
-        for st in m.status:
-            if status_node(st.name) == "tracking_node":
-                return {k: v for k, v in rm.diagnostic_values(st).items()}
-    return None
+    return latest_node_diagnostics(diags.msgs, "tracking_node")
 
 
 def sim_diag(diags):
-    for m in reversed(diags.msgs):
-        for st in m.status:
-            if status_node(st.name) == "sim_node":
-                return rm.diagnostic_values(st)
-    return None
+    return latest_node_diagnostics(diags.msgs, "sim_node")
 
 
 def counts(diags):
@@ -128,8 +119,7 @@ def settle_diag(g, diags, node):
     two fresh reports, the last two with the same frames_received (the node's queue, up to 1000
     frames deep, is drained; a fixed wait was too short after a burst on a loaded machine)."""
     def received():
-        return [int(rm.diagnostic_values(st)["frames_received"]) for m in diags.msgs for st in m.status
-                if status_node(st.name) == "tracking_node"]
+        return [int(v["frames_received"]) for v in node_diagnostics(diags.msgs, "tracking_node")]
     n = len(received())
     g.wait_until(lambda: len(r := received()) >= n + 2 and r[-1] == r[-2], 30,
                  "tracking_node diagnostics with its frame count settled", node)
