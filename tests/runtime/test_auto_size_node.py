@@ -15,10 +15,6 @@ pytestmark = [pytest.mark.ros, pytest.mark.slow, pytest.mark.flaky(reruns=1, rer
 ARGS = ["--ros-args", "-p", "diagnostics_rate:=4.0"]
 
 
-def latest(col, name):
-    return latest_node_diagnostics(col.msgs, name)
-
-
 def test_sim_node_sizes_the_hand_on_the_first_second(ros_env):
     """Before any tracker frame sim_node reports source auto, collecting, and publishes no bones;
     while the hand is made it keeps publishing /diagnostics (state building); after that it
@@ -35,18 +31,20 @@ def test_sim_node_sizes_the_hand_on_the_first_second(ros_env):
         # 4 Hz left room for one `building` status only (the check below wants two)
         sim = g.start(["softhand-sim", "--ros-args", "-p", "diagnostics_rate:=20.0", "-p", "hand_measures:=auto"])
         tracking = g.start(["softhand-tracking", *ARGS, "-p", "hand_measures:=auto"])
-        g.wait_until(lambda: latest(diag, "sim_node") is not None, 120, "sim_node diagnostics", sim)
-        g.wait_until(lambda: latest(diag, "tracking_node") is not None, 120, "tracking_node diagnostics", tracking)
-        v = latest(diag, "sim_node")
+        g.wait_until(lambda: latest_node_diagnostics(diag.msgs, "sim_node") is not None, 120,
+                     "sim_node diagnostics", sim)
+        g.wait_until(lambda: latest_node_diagnostics(diag.msgs, "tracking_node") is not None, 120,
+                     "tracking_node diagnostics", tracking)
+        v = latest_node_diagnostics(diag.msgs, "sim_node")
         assert v["hand_measures_source"] == "auto" and v["hand_size_state"] == "collecting", v
         assert len(bones) == 0
         g.start(["softhand-play", str(bag), "--wait-subscribers", "2"])
 
         def sized():
-            v = latest(diag, "sim_node")
+            v = latest_node_diagnostics(diag.msgs, "sim_node")
             return v is not None and "hand_size_state" not in v and int(v["steps"]) > 30
         g.wait_until(sized, 60, "sim_node simulating the fitted hand", sim)
-        v = latest(diag, "sim_node")
+        v = latest_node_diagnostics(diag.msgs, "sim_node")
         print("sim_node after sizing:", {k: v[k] for k in ("hand_measures_source", "hand_length_mm", "palm_length_mm",
                                                            "palm_width_mm", "steps")}, "expected", round(expected, 1))
         building = [v for v in node_diagnostics(diag.msgs, "sim_node") if v.get("hand_size_state") == "building"]
@@ -58,7 +56,7 @@ def test_sim_node_sizes_the_hand_on_the_first_second(ros_env):
         print("\n".join(line for line in sim.output().splitlines() if "hand_measures" in line))
         assert "hand_measures auto: hand fitted on" in sim.output()
         # the tracking node sized its loop's bones on the same frames (its own sizer)
-        t = latest(diag, "tracking_node")
+        t = latest_node_diagnostics(diag.msgs, "tracking_node")
         assert t["hand_measures_source"] == "auto" and "hand_size_state" not in t, t
         assert abs(float(t["hand_length_mm"]) - float(v["hand_length_mm"])) <= 0.1, (t, v)
         assert "hand_measures auto: hand fitted on" in tracking.output()

@@ -98,7 +98,7 @@ class PipelineResult:
     skin_min_z: np.ndarray       # (n,) lowest skin vertex [m]
     rejected_steps: int = 0
     cg_iters: np.ndarray = field(default=None)
-    step_ms: np.ndarray = field(default=None)  # (n,) wall time of each SimRuntime.step [ms]
+    step_ms: np.ndarray = field(default=None)  # (n,) wall time of the SimRuntime.step behind each record [ms]
     ball_z0: float = 0.0
 
     def held_mask(self, min_contacts=3):
