@@ -7,7 +7,9 @@ from pathlib import Path
 
 import pytest
 
-pytestmark = [pytest.mark.ros]
+# real DDS timing on a shared 2-core machine: one trial of six took 2.08 s once (a fresh clone's
+# suite run; the other five 0.13-0.55 s), so it gets the one retry the other timing tests get
+pytestmark = [pytest.mark.ros, pytest.mark.flaky(reruns=1, reruns_delay=2)]
 
 SUPPORT = Path(__file__).resolve().parents[1] / "support"
 PUBLISHERS = 4      # a node set's size: world, sim, tracking and the player before the recorder
