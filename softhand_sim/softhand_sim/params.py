@@ -151,13 +151,18 @@ SIM = {
                            "for residuals of 1e-15 N s); 1e-5 m/s is 0.17 um per 60 Hz step; 0: off", 0.0),
     "cg_max_iterations": P(int, 200, "-", "PCG iteration cap: bounds the cost of a step", 1, 100000),
     "preconditioner": P(str, "factor", "-", "PCG preconditioner: factor (sparse block LDL^T of the system matrix, "
-                        "refreshed over several steps), jacobi (the paper's) or block_jacobi (3x3 node, 6x6 body blocks)",
-                        choices=("factor", "jacobi", "block_jacobi")),
+                        "refreshed over several steps), two_level (Gauss-Seidel sweeps around a correction on the "
+                        "coarse hand's mesh: no factor of the fine system; for mesh fine in free motion), jacobi (the "
+                        "paper's) or block_jacobi (3x3 node, 6x6 body blocks)",
+                        choices=("factor", "two_level", "jacobi", "block_jacobi")),
     "factor_refresh_steps": P(int, 50, "-", "factor preconditioner: a new factorization at least every this many steps "
                               "(computed in as many slices, one per step)", 1, 100000),
     "factor_refresh_iterations": P(int, 8, "-", "factor preconditioner: refresh twice as fast after a CG that took "
                                    "more iterations than this, and factor the next step's matrix whole after one "
                                    "that took more than 4 times this", 0, 100000),
+    "two_level_refresh_steps": P(int, 12, "-", "two_level preconditioner: its coarse matrix P^T A P and that matrix's "
+                                 "factor computed anew every this many steps, spread over them (the whole of it "
+                                 "after a CG that took more than 4 times factor_refresh_iterations)", 1, 100000),
     "solver_threads": P(int, 1, "-", "threads of the step with two hands: 2 runs the hands' tissue, "
                         "factorization and triangular solves and the matrix products on two cores "
                         "(physics/parallel.py; the same results to round-off; OpenMP threads spin briefly "

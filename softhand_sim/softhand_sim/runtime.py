@@ -35,6 +35,7 @@ from softhand_sim.physics.control import Control
 from softhand_sim.physics.coupling import ObjectCopy, limit_coupling_stiffness
 from softhand_sim.physics.coupling import warm_up as coupling_warm_up
 from softhand_sim.handmodel import load_or_build_hand
+from softhand_sim.physics.two_level import coarse_mesh_of
 from softhand_sim.handmodel.measures import as_measures
 from softhand_sim.handmodel.rigid_skin import skin_segments
 from softhand_sim.hand_sizer import measures_diagnostics
@@ -162,7 +163,9 @@ class SimRuntime:
         self.objects = list(self.scene.dynamic_objects)
         self.object_names = [o.name for o in self.objects]
         union = union_asset(assets)  # the one asset itself for one hand
-        self.model = build_model(union, params, self.objects)
+        # two_level: each hand's coarse hand (its measures and side) is the preconditioner's coarse level
+        coarse = [coarse_mesh_of(a) for a in assets] if params["preconditioner"] == "two_level" else None
+        self.model = build_model(union, params, self.objects, coarse_meshes=coarse)
         self.contacts = contact_mod.build_contact_system(self.model, self.scene, union,
                                                          kn=params["contact_kn"], kf=params["contact_kf"])
         self.contacts.hand_enabled[:] = 0  # no contact before a hand's first target

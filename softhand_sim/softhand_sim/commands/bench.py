@@ -1,7 +1,7 @@
 """`softhand bench`: single-thread step timing of the soft-hand solver (compile time excluded).
 
     python -m softhand_sim.commands.bench [--scenario free|press|grasp] [--mesh coarse|fine|box]
-                                 [--steps N] [--preconditioner factor|block_jacobi|jacobi]
+                                 [--steps N] [--preconditioner factor|two_level|block_jacobi|jacobi]
                                  [--all-preconditioners] [--hands 1|2|1,2] [--profile] [--json]
 
 Meshes: coarse / fine = the parametric hand model (handmodel.load_or_build_hand(resolution=...));
@@ -27,6 +27,11 @@ held at its scene pose: the world's resting box). `--hands 1,2` runs both counts
 
 --threads 2 (with --hands 2): solver_threads 2, the two hands on the two cores (physics/parallel.py);
 the one-core figures are --threads 1, the default. `--threads 1,2` runs both, one after the other.
+
+--preconditioner two_level: Gauss-Seidel sweeps around a correction on the coarse hand's mesh
+(physics/two_level.py; its `factor` stage is the coarse level's refresh). Meant for the fine
+mesh; on the coarse one its coarse level is the hand's own mesh, a whole factor every
+two_level_refresh_steps steps.
 """
 import argparse
 import json
@@ -39,7 +44,7 @@ from softhand_sim.scenarios.bench_scenes import fingertip_pad_nodes, flexed_pose
 
 PAPER_STEPS_PER_S = 55.0
 MESHES = ("coarse", "fine", "box")
-PRECONDITIONERS = ("factor", "block_jacobi", "jacobi")
+PRECONDITIONERS = ("factor", "two_level", "block_jacobi", "jacobi")
 BOX_TETS = 850
 DT = 0.01
 _ASSETS = {}
@@ -397,9 +402,12 @@ def main(argv=None):
     ap = argparse.ArgumentParser(prog="softhand bench", description=__doc__.splitlines()[0])
     ap.add_argument("--scenario", choices=sorted(SCENARIOS), action="append")
     ap.add_argument("--mesh", choices=MESHES, action="append")
-    ap.add_argument("--preconditioner", choices=PRECONDITIONERS, action="append")
+    ap.add_argument("--preconditioner", choices=PRECONDITIONERS, action="append",
+                    help="PCG preconditioner (repeat for several; default factor); two_level: for the "
+                         "fine mesh")
     ap.add_argument("--all-preconditioners", action="store_true",
-                    help="run every preconditioner (the default factor, block_jacobi, the paper's jacobi)")
+                    help="run every preconditioner (the default factor, two_level, block_jacobi, the "
+                         "paper's jacobi)")
     ap.add_argument("--steps", type=int, default=300)
     ap.add_argument("--hands", default="1",
                     help="hands in the model: 1, 2 or 1,2 (both counts); two hands run "

@@ -115,7 +115,7 @@ def _get(asset, name, default):
     return default if v is None else v
 
 
-def build_model(asset, params=None, objects=()):
+def build_model(asset, params=None, objects=(), coarse_meshes=None):
     """Model from a HandAsset (or any object with its fields) + parameters + rigid objects.
 
     asset: one hand, or a list of hands (e.g. [right, left]): their union (physics/hands.py) is
@@ -126,8 +126,19 @@ def build_model(asset, params=None, objects=()):
 
     objects: sequence with .mass [kg], .inertia_local (3,3) [kg m^2] and .pose (7,) (e.g.
     scene.SceneObject); each becomes a body coupled by Eq. 14 to a target pose.
+
+    coarse_meshes: with `preconditioner: two_level`, one (nodes, tets) per hand: its coarse level
+    (physics/two_level.py; model.extra["coarse_meshes"]). None: the coarse hand of each hand
+    asset's measures and side (HandAssets only; a union of hands comes as the list of its hands).
     """
     p = model_params(params)
+    if p["preconditioner"] == "two_level" and coarse_meshes is None:
+        from softhand_sim.physics.two_level import coarse_mesh_of
+        hands = list(asset) if isinstance(asset, (list, tuple)) else [asset]
+        if not all(hasattr(a, "measures") and hasattr(a, "side") for a in hands):
+            raise ValueError("preconditioner='two_level': pass coarse_meshes (the asset is not a hand "
+                             "asset with measures and a side, whose coarse hand could be found)")
+        coarse_meshes = [coarse_mesh_of(a) for a in hands]
     if isinstance(asset, (list, tuple)):
         asset = union_asset(asset)
     layout = layout_of(asset)
@@ -220,6 +231,9 @@ def build_model(asset, params=None, objects=()):
         node_slots=stencil_slots(indptr, indices, node_dofs),
         body_slots=stencil_slots(indptr, indices, body_dofs), hands=layout,
     )
+    if coarse_meshes is not None:
+        model.extra["coarse_meshes"] = [(np.asarray(x, np.float64), np.asarray(t, np.int32))
+                                        for x, t in coarse_meshes]
     return model
 
 

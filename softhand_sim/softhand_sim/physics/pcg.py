@@ -7,16 +7,20 @@ Preconditioners:
   PRECOND_FACTOR        a sparse LDLᵀ of a recent M + dt^2 H (default; ldlt.py), refreshed in equal
                         slices every step: the stiff bone-tissue and joint springs couple bones and
                         nodes, which only a factorization captures (Jacobi hits the iteration cap)
+  PRECOND_TWO_LEVEL     Gauss-Seidel sweeps around a Galerkin correction on the coarse hand's mesh
+                        (two_level.py): no factor of the fine system, for the fine hand
 """
 import numpy as np
 from numba import njit, prange
 
 from softhand_sim.physics.ldlt import ldlt_solve
 from softhand_sim.physics.parallel import factor_rows_by_group, ldlt_solve_by_group, shared_split
+from softhand_sim.physics.two_level import v_cycle, v_cycle_by_hand
 
 PRECOND_JACOBI = 0
 PRECOND_BLOCK_JACOBI = 1
 PRECOND_FACTOR = 2
+PRECOND_TWO_LEVEL = 3
 
 
 class Factor:
@@ -257,7 +261,16 @@ def build_block_jacobi(values, node_slots, body_slots, node_inv, body_inv):
 
 
 @njit(cache=True)
-def _apply_precond(kind, r, z, diag_inv, node_inv, body_inv, body_dof0, fac):
+def _apply_precond(kind, r, z, diag_inv, node_inv, body_inv, body_dof0, fac, indptr, indices, values,
+                   diag_slot, tl):
+    if kind == PRECOND_TWO_LEVEL:
+        if tl[11].shape[0] > 1:  # the hands' sweeps on the cores (CoarseLevel threads)
+            v_cycle_by_hand(indptr, indices, values, diag_slot, r, z, tl[0], tl[1], tl[2], tl[3], tl[4],
+                            tl[5], tl[6], tl[7], tl[8], tl[9], tl[10], tl[11], tl[12], tl[13], tl[14])
+        else:
+            v_cycle(indptr, indices, values, diag_slot, r, z, tl[0], tl[1], tl[2], tl[3], tl[4], tl[5], tl[6],
+                    tl[7], tl[8], tl[9], tl[10])
+        return
     if kind == PRECOND_FACTOR:
         if fac[6].shape[0] > 1:  # the hands' rows on the cores (Factor.threads)
             ldlt_solve_by_group(fac[0], fac[1], fac[2], fac[3], fac[4], fac[5], r, z,
@@ -285,11 +298,16 @@ def _apply_precond(kind, r, z, diag_inv, node_inv, body_inv, body_dof0, fac):
 
 ONE_CHUNK = np.zeros(2, np.int64)  # row_chunks of a product on one thread
 NO_LOW_RANK = (0, np.zeros((0, 8), np.int32), np.zeros((0, 8)), np.zeros((0, 3, 3)))
+# two_level.CoarseLevel.arrays' types, empty: what the other preconditioners pass
+NO_TWO_LEVEL = (np.zeros((0, 4), np.int32), np.zeros((0, 4)), np.zeros(1, np.int32), np.zeros(0, np.int32),
+                np.zeros((0, 3, 3)), np.zeros((0, 3, 3)), np.zeros(0, np.int32), np.zeros(0), np.zeros(0),
+                np.zeros(0), np.zeros(0), np.zeros((1, 4), np.int64), np.zeros(0, np.int64),
+                np.zeros(0, np.int32), np.zeros(0))
 
 
 def pcg(indptr, indices, values, b, x, tol, max_iter, kind, diag_slot, node_slots, body_slots,
         body_dof0, diag_inv, node_inv, body_inv, r, z, p, Ap, fac, triplets=False, low_rank=NO_LOW_RANK,
-        energy_floor=0.0, row_chunks=None):
+        energy_floor=0.0, row_chunks=None, two_level=NO_TWO_LEVEL):
     """Solve A x = b in place from the warm start x, A = the CSR matrix plus the low-rank term
     low_rank = (rows, nodes (C,8), weights (C,8), K (C,3,3)): sum over its first `rows` rows of
     L K L^T, L (3 x n) the row's weights on its nodes' 3 DOFs each (energies/self_contact.
@@ -298,13 +316,14 @@ def pcg(indptr, indices, values, b, x, tol, max_iter, kind, diag_slot, node_slot
     r^T z <= energy_floor (z = P^-1 r: the error e = A^-1 r in A's energy norm, e^T A e, which
     P <= A overestimates; A = M + dt^2 H >= M, so e^T M e <= energy_floor: with energy_floor =
     m v^2 the velocity error's mass-weighted RMS is below v), or after max_iter iterations.
-    fac: Factor.arrays (used by PRECOND_FACTOR). triplets: the pattern is made of column triplets
+    fac: Factor.arrays (used by PRECOND_FACTOR); two_level: CoarseLevel.arrays (PRECOND_TWO_LEVEL,
+    whose sweeps run on the CSR matrix). triplets: the pattern is made of column triplets
     (triplet_pattern; faster products). row_chunks: row bounds of the product's chunks run in
     parallel (parallel.row_chunks; solver_threads > 1, triplet patterns). Returns (iterations,
     relative residual ||r||/||b||, hit_cap)."""
     return _pcg(indptr, indices, values, b, x, tol, max_iter, kind, diag_slot, node_slots, body_slots,
                 body_dof0, diag_inv, node_inv, body_inv, r, z, p, Ap, fac, triplets,
-                ONE_CHUNK if row_chunks is None else row_chunks, *low_rank, float(energy_floor))
+                ONE_CHUNK if row_chunks is None else row_chunks, *low_rank, float(energy_floor), two_level)
 
 
 @njit(cache=True)
@@ -354,7 +373,7 @@ def _dot(a, b):
 @njit(cache=True)
 def _pcg(indptr, indices, values, b, x, tol, max_iter, kind, diag_slot, node_slots, body_slots,
          body_dof0, diag_inv, node_inv, body_inv, r, z, p, Ap, fac, triplets, row0, lr_rows, lr_nodes,
-         lr_weights, lr_K, energy_floor):
+         lr_weights, lr_K, energy_floor, tl):
     n = b.shape[0]
     if kind == PRECOND_JACOBI:
         for i in range(n):
@@ -371,7 +390,8 @@ def _pcg(indptr, indices, values, b, x, tol, max_iter, kind, diag_slot, node_slo
     rnorm = np.sqrt(_dot(r, r))
     if rnorm <= tol * bnorm:
         return 0, rnorm / bnorm, False
-    _apply_precond(kind, r, z, diag_inv, node_inv, body_inv, body_dof0, fac)
+    _apply_precond(kind, r, z, diag_inv, node_inv, body_inv, body_dof0, fac, indptr, indices, values,
+                   diag_slot, tl)
     p[:] = z
     rz = _dot(r, z)
     if rz <= energy_floor:
@@ -392,7 +412,8 @@ def _pcg(indptr, indices, values, b, x, tol, max_iter, kind, diag_slot, node_slo
         rnorm = np.sqrt(rr)
         if rnorm <= tol * bnorm:
             return it, rnorm / bnorm, False
-        _apply_precond(kind, r, z, diag_inv, node_inv, body_inv, body_dof0, fac)
+        _apply_precond(kind, r, z, diag_inv, node_inv, body_inv, body_dof0, fac, indptr, indices, values,
+                       diag_slot, tl)
         rz_new = _dot(r, z)
         if rz_new <= energy_floor:
             return it, rnorm / bnorm, False

@@ -140,7 +140,7 @@ class Solver:
         self.cg_tol = float(p["cg_tolerance"])
         self.cg_max_iter = int(p["cg_max_iterations"])
         kinds = {"jacobi": pcg_mod.PRECOND_JACOBI, "block_jacobi": pcg_mod.PRECOND_BLOCK_JACOBI,
-                 "factor": pcg_mod.PRECOND_FACTOR}
+                 "factor": pcg_mod.PRECOND_FACTOR, "two_level": pcg_mod.PRECOND_TWO_LEVEL}
         if p["preconditioner"] not in kinds:
             raise ValueError(f"preconditioner={p['preconditioner']!r}: expected one of {sorted(kinds)}")
         self.precond = kinds[p["preconditioner"]]
@@ -163,6 +163,17 @@ class Solver:
         self.factor = (pcg_mod.Factor(model.dof_count, m.indptr, m.indices, max_slices=self.refactor_every,
                                       groups=groups, threads=self.threads)
                        if self.precond == pcg_mod.PRECOND_FACTOR else pcg_mod.Factor(model.dof_count))
+        # two-level preconditioner: the coarse hand's mesh as its coarse level (two_level.py), its
+        # matrix computed anew over every two_level_refresh_steps steps (whole after a long CG)
+        self.coarse = None
+        if self.precond == pcg_mod.PRECOND_TWO_LEVEL:
+            from softhand_sim.physics.two_level import CoarseLevel
+            meshes = m.extra.get("coarse_meshes")
+            if meshes is None:
+                raise ValueError("preconditioner='two_level' needs the coarse hand's mesh of each hand: "
+                                 "build_model(..., coarse_meshes=...) (from hand assets: found by itself)")
+            self.coarse = CoarseLevel(m, meshes, refresh_steps=int(p["two_level_refresh_steps"]),
+                                      threads=self.threads)
         self._last_iters = 0
         self._v_prev = np.full(model.dof_count, np.nan)  # v_n-1 for CG's start (NaN: none yet)
         self._v_scratch = np.empty(model.dof_count)
@@ -320,6 +331,12 @@ class Solver:
             else:
                 catch_up = self._last_iters > self.refactor_iters and self.factor.slices > 1
                 refactored = self.factor.advance(self.values, 2 if catch_up else 1)
+        elif self.coarse is not None:
+            if not self.coarse.valid or self._last_iters > 4 * self.refactor_iters:
+                self.coarse.refresh(self.values)
+                refactored = True
+            else:
+                refactored = self.coarse.advance(self.values)
         t3 = clock()
         # CG starts from the velocity extrapolated from the last two steps (2 v_n - v_n-1) rather
         # than from v_n: it stops at a residual relative to the right-hand side, and a hand in
@@ -331,7 +348,8 @@ class Solver:
             m.indptr, m.indices, self.values, self.rhs, state.v, self.cg_tol, self.cg_max_iter,
             self.precond, m.diag_slot, m.node_slots, m.body_slots, m.body_dof0, self._diag_inv,
             self._node_inv, self._body_inv, self._r, self._z, self._p, self._Ap, self.factor.arrays,
-            self._triplets, low_rank, self.cg_energy_floor, self._row_chunks)
+            self._triplets, low_rank, self.cg_energy_floor, self._row_chunks,
+            self.coarse.arrays if self.coarse is not None else pcg_mod.NO_TWO_LEVEL)
         t4 = clock()
         self._last_iters = iters
         _advance(state.node_x, state.v, state.body_x, state.body_q, state.body_pose,
