@@ -33,6 +33,9 @@ from numba import njit, prange
 from softhand_sim.physics.ldlt import block_pattern, ldlt_solve
 from softhand_sim.physics.parallel import ldlt_solve_by_group
 
+WEIGHT_FLOOR = 1e-9  # interpolation weights below it are round-off: none (CoarseLevel)
+_U = np.uint64  # unsigned indices: numba tests a signed one for wrap-around at every gather
+
 
 @njit(cache=True)
 def coarse_weights(fine_x, coarse_x, coarse_tets, out_idx, out_w):
@@ -111,10 +114,6 @@ def galerkin_by_hand(values, order, lo, hi, bptr, bind, blk_slots, pc, pw, eslot
     only into its own coarse rows (P maps a hand's blocks to its own coarse blocks)."""
     for h in prange(lo.shape[0]):
         galerkin_blocks(values, order, lo[h], hi[h], bptr, bind, blk_slots, pc, pw, eslot, cslot, out)
-
-
-WEIGHT_FLOOR = 1e-9  # interpolation weights below it are round-off: none (CoarseLevel)
-_U = np.uint64  # unsigned indices: numba tests a signed one for wrap-around at every gather
 
 
 @njit(cache=True, inline="always")
@@ -254,49 +253,82 @@ class CoarseLevel:
         hands = model.hands
         if len(coarse_meshes) != hands.count:
             raise ValueError(f"{len(coarse_meshes)} coarse mesh(es) for {hands.count} hand(s)")
-        N, B = model.node_count, model.body_count
-        n = model.dof_count
+        N, B, n = model.node_count, model.body_count, model.dof_count
         if model.body_dof0 != 3 * N or n != 3 * N + 6 * B:
             raise ValueError(f"unexpected DOF layout: {n} DOFs for {N} nodes and {B} bodies")
+        self.refresh_steps = int(refresh_steps)
+        if self.refresh_steps < 1:
+            raise ValueError(f"refresh_steps={refresh_steps}: must be >= 1")
+        by_hand = threads > 1 and hands.count > 1
+        cnode0 = self._prolongation(model, coarse_meshes)
+        self._coarse_pattern(model)
+        groups = None
+        if by_hand:  # each hand's coarse blocks (its coarse nodes, its bones) ordered apart
+            Nc = self.coarse_nodes
+            groups = [np.concatenate([np.arange(cnode0[h], cnode0[h + 1]),
+                                      Nc + np.arange(2 * hands.bone0[h], 2 * hands.bone0[h + 1])])
+                      for h in range(hands.count)]
+        self.factor = Factor(self.n, self.indptr, self.indices, max_slices=1, groups=groups,
+                             threads=threads if by_hand else 1)
+        self._slices(model, by_hand)
+        self.valid = False
+        self._phase = 0
+        sliced = self.refresh_steps > 1
+        self._snap = np.zeros(len(model.indices)) if sliced else None  # the fine values being sliced
+        self._next = np.zeros(len(self.indices)) if sliced else None    # their A_c, slice by slice
+        self.scratch = (np.zeros(n), np.zeros(self.n), np.zeros(self.n))
+        # each hand's rows for v_cycle_by_hand (node DOFs, bone DOFs); one row of zeros: v_cycle
+        self.rows = np.zeros((1, 4), np.int64)
+        if by_hand:
+            b0 = model.body_dof0
+            self.rows = np.array([(3 * hands.node0[h], 3 * hands.node0[h + 1],
+                                   b0 + 6 * hands.bone0[h], b0 + 6 * hands.bone0[h + 1])
+                                  for h in range(hands.count)], np.int64)
+
+    def _prolongation(self, model, coarse_meshes):
+        """P by 3x3 blocks: pc (nb, 4) the coarse blocks of each fine block (-1: none), pw their
+        weights. Blocks: fine nodes 0..N-1, then 2 per body; coarse nodes 0..Nc-1 (the hands' in
+        turn, those no fine node uses left out), then the same bodies. Returns each hand's first
+        coarse node (H + 1,)."""
+        hands, N, B = model.hands, model.node_count, model.body_count
         fine_idx = np.full((N, 4), -1, np.int32)
         fine_w = np.zeros((N, 4))
-        offset = 0
+        ends = [0]
         for h, (cx, ct) in enumerate(coarse_meshes):
-            cx = np.ascontiguousarray(cx, np.float64)
-            ct = np.ascontiguousarray(ct, np.int32)
             nodes = hands.nodes(h)
             idx = np.empty((nodes.stop - nodes.start, 4), np.int32)
-            coarse_weights(np.ascontiguousarray(model.node_rest[nodes]), cx, ct, idx, fine_w[nodes])
-            fine_idx[nodes] = idx + offset
-            offset += len(cx)
+            coarse_weights(np.ascontiguousarray(model.node_rest[nodes]), np.ascontiguousarray(cx, np.float64),
+                           np.ascontiguousarray(ct, np.int32), idx, fine_w[nodes])
+            fine_idx[nodes] = idx + ends[-1]
+            ends.append(ends[-1] + len(cx))
         # a weight of round-off size (a fine node on a coarse tet's face or vertex) would make its
         # coarse node a column of P that is all but zero, and A_c singular: such weights are none
         fine_w[fine_w < WEIGHT_FLOOR] = 0.0
         fine_w /= fine_w.sum(1, keepdims=True)
         # coarse nodes no fine node depends on would be empty rows of A_c: leave them out
-        used = np.zeros(offset, bool)
+        used = np.zeros(ends[-1], bool)
         used[fine_idx[fine_w > 0.0]] = True
         renum = np.cumsum(used) - 1
         fine_idx = np.where(fine_w > 0.0, renum[fine_idx], -1).astype(np.int32)
-        fine_w = np.where(fine_w > 0.0, fine_w, 0.0)
-        order = np.argsort(fine_idx < 0, axis=1, kind="stable")  # the used entries first
-        fine_idx = np.take_along_axis(fine_idx, order, 1)
-        fine_w = np.take_along_axis(fine_w, order, 1)
-        Nc = int(used.sum())
-        self.coarse_nodes = Nc
-        # blocks: fine nodes 0..N-1, then 2 per body; coarse nodes 0..Nc-1, then the same bodies
-        nbf, nbc = n // 3, Nc + 2 * B
-        self.pc = np.full((nbf, 4), -1, np.int32)
-        self.pw = np.zeros((nbf, 4))
-        self.pc[:N], self.pw[:N] = fine_idx, fine_w
+        first = np.argsort(fine_idx < 0, axis=1, kind="stable")  # the used entries first
+        self.coarse_nodes = Nc = int(used.sum())
+        self.pc = np.full((N + 2 * B, 4), -1, np.int32)
+        self.pw = np.zeros((N + 2 * B, 4))
+        self.pc[:N] = np.take_along_axis(fine_idx, first, 1)
+        self.pw[:N] = np.take_along_axis(fine_w, first, 1)
         self.pc[N:, 0] = Nc + np.arange(2 * B, dtype=np.int32)
         self.pw[N:, 0] = 1.0
-        # the coarse block pattern: every (pc[I,a], pc[J,b]) of every fine block (I, J)
-        bptr, bind, self.blk_slots = block_pattern(model.indptr, model.indices, n)
-        self.bptr, self.bind = bptr, bind
-        rows = np.repeat(np.arange(nbf), np.diff(bptr))
+        return np.array([int(used[:e].sum()) for e in ends])
+
+    def _coarse_pattern(self, model):
+        """The pattern of A_c, every (pc[I,a], pc[J,b]) of every fine block (I, J), as a scalar CSR
+        whose 3x3 blocks are complete (row 3a+d holds block row a's blocks, 3 entries each), and
+        for galerkin_blocks each fine block's coarse blocks (eslot) and their value indices (cslot)."""
+        n, nbf, nbc = model.dof_count, len(self.pc), self.coarse_nodes + 2 * model.body_count
+        self.bptr, self.bind, self.blk_slots = block_pattern(model.indptr, model.indices, n)
+        rows = np.repeat(np.arange(nbf), np.diff(self.bptr))
         pa = self.pc[rows][:, :, None]
-        pb = self.pc[bind][:, None, :]
+        pb = self.pc[self.bind][:, None, :]
         valid = (pa >= 0) & (pb >= 0)
         keys = np.where(valid, pa.astype(np.int64) * nbc + pb, -1)
         ukeys = np.unique(keys[valid])
@@ -305,10 +337,8 @@ class CoarseLevel:
         cbptr = np.zeros(nbc + 1, np.int64)
         np.add.at(cbptr, crow + 1, 1)
         cbptr = np.cumsum(cbptr)
-        # scalar CSR of A_c, every block complete: row 3a+d holds block row a's blocks, 3 each
-        width = 3 * np.diff(cbptr)
         self.indptr = np.zeros(3 * nbc + 1, np.int32)
-        self.indptr[1:] = np.cumsum(np.repeat(width, 3))
+        self.indptr[1:] = np.cumsum(np.repeat(3 * np.diff(cbptr), 3))
         self.indices = np.empty(int(self.indptr[-1]), np.int32)
         self.cslot = np.empty((len(ukeys), 3, 3), np.int32)
         q_in_row = np.arange(len(ukeys)) - cbptr[crow]
@@ -319,23 +349,12 @@ class CoarseLevel:
                 self.cslot[:, d, e] = start + e
         self.n = 3 * nbc
         self.values = np.zeros(len(self.indices))
-        by_hand = threads > 1 and hands.count > 1
-        groups = None
-        if by_hand:  # each hand's coarse blocks (its coarse nodes, its bones) ordered apart
-            ends = np.cumsum([len(x) for x, _ in coarse_meshes])  # each hand's coarse nodes, before
-            cnode0 = np.r_[0, [int(used[:e].sum()) for e in ends]]  # ... and after the unused left out
-            groups = [np.concatenate([np.arange(cnode0[h], cnode0[h + 1]),
-                                      Nc + np.arange(2 * hands.bone0[h], 2 * hands.bone0[h + 1])])
-                      for h in range(hands.count)]
-        self.factor = Factor(self.n, self.indptr, self.indices, max_slices=1, groups=groups,
-                             threads=threads if by_hand else 1)
-        self.valid = False
-        # the sliced refresh (advance): K - 1 slices of every hand's fine block rows, of equal work
-        # (order: each hand's node blocks and bone blocks, hand after hand, then the objects')
-        self.refresh_steps = K = int(refresh_steps)
-        if K < 1:
-            raise ValueError(f"refresh_steps={refresh_steps}: must be >= 1")
-        S = max(K - 1, 1)
+
+    def _slices(self, model, by_hand):
+        """The sliced refresh's K - 1 slices of every hand's fine block rows, of equal work: order
+        (each hand's node and bone blocks in turn, then the objects' from `shared` on, added with
+        the last slice on one thread) and slice_bounds[s, h], positions in order."""
+        hands, N, nbf = model.hands, model.node_count, len(self.pc)
         if by_hand:
             bodies = N + 2 * np.asarray(hands.bone0)
             per_hand = [np.r_[hands.node0[h]:hands.node0[h + 1], bodies[h]:bodies[h + 1]]
@@ -344,26 +363,17 @@ class CoarseLevel:
             starts = np.r_[0, np.cumsum([len(blocks) for blocks in per_hand])]
         else:
             self.order, starts = np.arange(nbf, dtype=np.int64), np.array([0, nbf])
-        self.shared = int(starts[-1])  # order[shared:]: the objects' blocks (last slice, one thread)
+        self.shared = int(starts[-1])
+        rows = np.repeat(np.arange(nbf), np.diff(self.bptr))
         entries = (self.pc >= 0).sum(1)
         work = np.zeros(nbf)
-        np.add.at(work, rows, entries[rows] * entries[bind])
-        self.slice_bounds = np.empty((S + 1, len(starts) - 1), np.int64)  # [s, h]: slice s of hand h
+        np.add.at(work, rows, entries[rows] * entries[self.bind])
+        S = max(self.refresh_steps - 1, 1)
+        self.slice_bounds = np.empty((S + 1, len(starts) - 1), np.int64)
         for h in range(len(starts) - 1):
             cum = np.cumsum(work[self.order[starts[h]:starts[h + 1]]])
             cuts = np.searchsorted(cum, cum[-1] * np.arange(1, S) / S) if len(cum) else np.zeros(S - 1, int)
             self.slice_bounds[:, h] = np.r_[0, cuts, starts[h + 1] - starts[h]] + starts[h]
-        self._phase = 0
-        self._snap = np.zeros(len(model.indices)) if K > 1 else None  # the fine values being sliced
-        self._next = np.zeros(len(self.indices)) if K > 1 else None    # their A_c, summed slice by slice
-        self.scratch = (np.zeros(n), np.zeros(self.n), np.zeros(self.n))
-        # each hand's rows for v_cycle_by_hand (node DOFs, bone DOFs); one row of zeros: v_cycle
-        self.rows = np.zeros((1, 4), np.int64)
-        if by_hand:
-            b0 = model.body_dof0
-            self.rows = np.array([(3 * hands.node0[h], 3 * hands.node0[h + 1],
-                                   b0 + 6 * hands.bone0[h], b0 + 6 * hands.bone0[h + 1])
-                                  for h in range(hands.count)], np.int64)
 
     def _galerkin(self, values, s, out):
         """Add slice s of every hand (all of them: s None) and, with the last slice, the objects'."""
