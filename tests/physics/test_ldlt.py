@@ -7,6 +7,7 @@ from scipy.sparse.linalg import spsolve
 
 from softhand_sim.physics import ldlt
 from softhand_sim.physics import pcg
+from softhand_sim.physics.factor_hold import FactorHold
 from softhand_sim.scenarios.bench_scenes import box_hand_with_tets
 from softhand_sim.physics.model import build_model
 from softhand_sim.physics.solver import Solver
@@ -190,6 +191,7 @@ def test_a_cg_far_over_the_refresh_iterations_refactors_at_once(system, last_ite
     m, _ = system
     s = Solver(m)
     s.factor = pcg.Factor(m.dof_count, m.indptr, m.indices, slice_flops=1.0, max_slices=5)
+    s.hold = FactorHold(0.0)  # a new factorization as soon as the last is done (no hold)
     assert s.factor.slices == 5
     state, control = m.initial_state(), m.control()
     state.v[:] = np.random.default_rng(5).normal(0.0, 0.05, m.dof_count)

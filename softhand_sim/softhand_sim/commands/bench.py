@@ -3,6 +3,7 @@
     python -m softhand_sim.commands.bench [--scenario free|press|grasp] [--mesh coarse|fine|box]
                                  [--steps N] [--preconditioner factor|two_level|block_jacobi|jacobi]
                                  [--all-preconditioners] [--hands 1|2|1,2] [--profile] [--json]
+                                 [--set KEY=VALUE ...]
 
 Meshes: coarse / fine = the parametric hand model (handmodel.load_or_build_hand(resolution=...));
 box = the voxel box hand of bench_scenes (~850 tets, the paper's size; no hand builder needed).
@@ -32,6 +33,11 @@ the one-core figures are --threads 1, the default. `--threads 1,2` runs both, on
 (physics/two_level.py; its `factor` stage is the coarse level's refresh). Meant for the fine
 mesh; on the coarse one its coarse level is the hand's own mesh, a whole factor every
 two_level_refresh_steps steps.
+
+--set KEY=VALUE: a sim_node solver parameter for every case (`softhand params sim_node`), e.g.
+`--set factor_hold=0` for the factor preconditioner with a new factorization as soon as the last
+is done, as before factor_hold (physics/factor_hold.py); `factor_held` counts the steps that kept
+the factor in use, `refactors` those that put a new one in use.
 """
 import argparse
 import json
@@ -308,7 +314,23 @@ def check_case(scenario, hands):
     return scenes
 
 
-def run(scenario, mesh, steps, preconditioner, hands=1, profile=False, threads=1):
+def parse_settings(items):
+    """--set KEY=VALUE items -> {key: value}, each checked as a sim_node parameter (ValueError
+    naming the bad item); preconditioner and solver_threads have options of their own."""
+    from softhand_sim.params import check_value, safe_load
+    out = {}
+    for item in items or ():
+        key, eq, text = item.partition("=")
+        if not eq:
+            raise ValueError(f"--set {item!r}: expected KEY=VALUE, e.g. --set factor_hold=0")
+        own = {"preconditioner": "--preconditioner", "solver_threads": "--threads"}
+        if key in own:
+            raise ValueError(f"--set {item!r}: use {own[key]}")
+        out[key] = check_value("sim_node", key, safe_load(text))
+    return out
+
+
+def run(scenario, mesh, steps, preconditioner, hands=1, profile=False, threads=1, settings=None):
     from softhand_sim.physics.model import build_model
     from softhand_sim.physics.solver import STAGE_FIELDS, Solver
     scenes = check_case(scenario, hands)
@@ -317,7 +339,8 @@ def run(scenario, mesh, steps, preconditioner, hands=1, profile=False, threads=1
         asset = [asset, _asset(mesh, "left")[0]]
     objects = getattr(scenes[scenario], "objects", None)  # scenarios may add rigid objects
     params = getattr(scenes[scenario], "params", dict)()   # ... and their own solver parameters
-    model = build_model(asset, {**params, "preconditioner": preconditioner, "solver_threads": threads},
+    model = build_model(asset, {**params, **(settings or {}), "preconditioner": preconditioner,
+                                "solver_threads": threads},
                         objects=objects(asset) if objects else ())
     t0 = time.perf_counter()
     contacts = getattr(scenes[scenario], "contacts", lambda model: None)  # ... and contact
@@ -330,7 +353,7 @@ def run(scenario, mesh, steps, preconditioner, hands=1, profile=False, threads=1
     solver = Solver(model, contacts=contacts(model), self_contacts=self_contacts(model))
     state, control = model.initial_state(), model.control()
     update = scenes[scenario](solver, state, control)
-    ms, setup, solve, iters, contacts, coll, caps, refac = [], [], [], [], [], [], 0, 0
+    ms, setup, solve, iters, contacts, coll, caps, refac, held = [], [], [], [], [], [], 0, 0, 0
     self_n, self_ms = [], []
     stage_ms = {name: [] for name, _ in STAGE_FIELDS}
     for k in range(steps):
@@ -347,6 +370,7 @@ def run(scenario, mesh, steps, preconditioner, hands=1, profile=False, threads=1
         self_ms.append(st.self_collision_ms)
         caps += st.hit_cap
         refac += st.refactored
+        held += st.held
         for name, f in STAGE_FIELDS:
             stage_ms[name].append(getattr(st, f))
     ms = np.array(ms)
@@ -358,11 +382,11 @@ def run(scenario, mesh, steps, preconditioner, hands=1, profile=False, threads=1
         "max_ms": float(ms.max()), "steps_per_s": float(1e3 / np.median(ms)),
         "setup_ms": float(np.median(setup)), "solve_ms": float(np.median(solve)),
         "cg_iters_median": float(np.median(iters)), "cg_iters_max": int(max(iters)),
-        "cg_hit_cap": int(caps), "refactors": int(refac),
+        "cg_hit_cap": int(caps), "refactors": int(refac), "factor_held": int(held),
         "contacts_median": float(np.median(contacts)), "collision_ms": float(np.median(coll)),
         "self_contacts_median": float(np.median(self_n)), "self_collision_ms": float(np.median(self_ms)),
         "compile_s": compile_s, "finite": bool(np.all(np.isfinite(state.node_x))),
-        "paper_steps_per_s": PAPER_STEPS_PER_S,
+        "paper_steps_per_s": PAPER_STEPS_PER_S, "settings": dict(settings or {}),
     }
     if profile:
         row["stages"] = stage_profile(ms, stage_ms)
@@ -370,7 +394,7 @@ def run(scenario, mesh, steps, preconditioner, hands=1, profile=False, threads=1
 
 
 COLUMNS = ["hands", "threads", "scenario", "mesh", "tets", "dofs", "preconditioner", "median_ms", "p99_ms",
-           "steps_per_s", "setup_ms", "solve_ms", "cg_iters_median", "cg_hit_cap", "refactors",
+           "steps_per_s", "setup_ms", "solve_ms", "cg_iters_median", "cg_hit_cap", "refactors", "factor_held",
            "contacts_median", "collision_ms", "self_contacts_median", "self_collision_ms", "compile_s"]
 
 
@@ -418,6 +442,9 @@ def main(argv=None):
                          "one-core figure)")
     ap.add_argument("--profile", action="store_true",
                     help="split the step into its stages (median, p99, share of the step per stage)")
+    ap.add_argument("--set", action="append", metavar="KEY=VALUE", dest="settings",
+                    help="a sim_node solver parameter for every case (repeat for several), e.g. "
+                         "--set factor_hold=0 (`softhand params sim_node` lists them)")
     ap.add_argument("--json", action="store_true")
     a = ap.parse_args(argv)
     if a.steps < 1:
@@ -437,11 +464,12 @@ def main(argv=None):
         ap.error(f"--threads {a.threads} needs --hands 2 (one hand runs on one thread)")
     scenarios = a.scenario or ["free", "press"]
     try:
+        settings = parse_settings(a.settings)
         for h in counts:  # every case checked before the first one runs (a minute each)
             for s in scenarios:
                 check_case(s, h)
-        rows = [run(s, m, a.steps, p, h, a.profile, t) for h in counts for m in (a.mesh or ["coarse", "fine"])
-                for s in scenarios for p in precs for t in threads]
+        rows = [run(s, m, a.steps, p, h, a.profile, t, settings) for h in counts
+                for m in (a.mesh or ["coarse", "fine"]) for s in scenarios for p in precs for t in threads]
     except ValueError as e:
         ap.error(str(e))
     print(json.dumps(rows, indent=1) if a.json else format_table(rows))

@@ -25,13 +25,14 @@ PRECOND_TWO_LEVEL = 3
 
 class Factor:
     """LDLᵀ of M + dt² H (ldlt.py: ordering and symbolic analysis once per pattern) used as the
-    PCG preconditioner, refreshed continuously in equal slices: each step factors 1/K of the
+    PCG preconditioner, refreshed in equal slices: each step factors 1/K of the
     rows of a snapshot of the matrix (K from a cost model, or so a slice is `slice_flops`), and when the
-    last slice is done the new factor replaces the one in use and the next snapshot is taken.
-    Every step pays the same small cost (no refactorization spikes; p99 ~ median) and the factor
-    in use is at most 2K steps old (K = 1: the factor of the current matrix, every step). The
-    solver runs two slices per step after a CG that needed many iterations, and a whole
-    factorization (refresh) after one that needed very many.
+    last slice is done the new factor replaces the one in use. Every slice costs the same small
+    time (no refactorization spikes). The solver starts the next factorization when the last is
+    done, or keeps the factor in use for a while first when CG still converges fast on it
+    (factor_hold.py; without that, the factor in use is at most 2K steps old, and K = 1 is the
+    factor of the current matrix, every step); it runs two slices per step after a CG that needed
+    many iterations, and a whole factorization (refresh) after one that needed very many.
 
     With threads > 1 and groups (one per hand), each slice factors every group's share of it
     in parallel and the solves run the groups in parallel (parallel.py); the shared rows (the
@@ -51,6 +52,7 @@ class Factor:
         self.arrays = (np.zeros(nb + 1, np.int32), e_i, e_f, np.tile(np.eye(3), (nb, 1, 1)),
                        np.arange(nb, dtype=np.int32), np.zeros(n)) + self._serial
         self.slice_flops, self.max_slices = slice_flops, max_slices
+        self.iterations_per_factor = 0.0  # a factorization's cost in CG iterations (analyse)
         self.groups = groups  # block groups ordered apart (ldlt.grouped_order): one per hand
         self.threads = int(threads)
         if self.threads < 1:
@@ -64,13 +66,15 @@ class Factor:
         self.indptr, self.indices = indptr, indices
         self.sym = sym = Symbolic(indptr, indices, self.n, groups=self.groups)
         self.nnz = sym.nnz_L
+        # the factor F and one CG iteration c (LDLᵀ solve + matvec) estimated from their flops
+        # and the speeds measured for these kernels (~4, ~7, ~2 GFlop/s); F / c is what a
+        # factorization costs in iterations (the factor_hold rule's unit, factor_hold.py)
+        t_factor = sym.flops / 4e9
+        t_iter = 36.0 * sym.nnz_L / 7e9 + 2.0 * len(indices) / 2e9
+        self.iterations_per_factor = t_factor / t_iter
         if self.slice_flops is None:
             # K minimizing F/K + c it(K) with it(K) ~ 1 + 4 log2 K (measured on the hands: 1, 5,
-            # 7, 9, 14 iterations for K = 1, 2, 4, 8, 16): K = F ln2 / (4 c), with the factor F and
-            # one CG iteration c (LDLᵀ solve + matvec) estimated from their flops and the speeds
-            # measured for these kernels (~4, ~7, ~2 GFlop/s)
-            t_factor = sym.flops / 4e9
-            t_iter = 36.0 * sym.nnz_L / 7e9 + 2.0 * len(indices) / 2e9
+            # 7, 9, 14 iterations for K = 1, 2, 4, 8, 16): K = F ln2 / (4 c)
             want = int(0.17 * t_factor / t_iter)  # rounded down: K = 2 costs 4 more iterations
         else:
             want = int(np.ceil(sym.flops / self.slice_flops))
@@ -130,6 +134,11 @@ class Factor:
         self.arrays = (sym.Lp, sym.Li, Lx, Dinv, sym.perm, self._tmp) + (
             self._by_group if self.by_group else self._serial)
         self.valid = True
+
+    @property
+    def in_progress(self):
+        """True while a factorization spread over steps has slices left to run."""
+        return self._next > 0
 
     def refresh(self, indptr, indices, values):
         """A complete factorization of values now (the first step, or on demand)."""

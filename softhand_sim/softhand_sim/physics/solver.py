@@ -31,6 +31,7 @@ from numba import njit
 from softhand_sim.physics import parallel, pcg as pcg_mod
 from softhand_sim.physics.energies import bone_tissue, gravity, joints, rigid_coupling, tissue
 from softhand_sim.physics.embedded import embedded_positions
+from softhand_sim.physics.factor_hold import FactorHold
 from softhand_sim.physics.energies.inertia import finalize_system, kinetic_energy
 from softhand_sim.physics.rotations import integrate_rotation, quat_to_matrix
 
@@ -66,6 +67,7 @@ class StepStats:
     advance_ms: float = 0.0     # positions and orientations by dt v
     hit_cap: bool = False       # CG stopped at cg_max_iterations
     refactored: bool = False    # a new factor preconditioner was published in this step (in setup)
+    held: bool = False          # the factor in use was kept and no factorization ran (factor_hold)
     contacts: int = 0
     self_contacts: int = 0
 
@@ -152,6 +154,9 @@ class Solver:
         self.refactor_iters = int(p["factor_refresh_iterations"])
         if self.refactor_every < 1:
             raise ValueError(f"factor_refresh_steps={self.refactor_every}: must be >= 1")
+        # the factor in use kept, no factorization started, while CG's iterations on it stay
+        # cheaper than one (factor_hold.py)
+        self.hold = FactorHold(float(p["factor_hold"]))
         self.threads = int(p["solver_threads"])
         if self.threads > 1:
             import numba
@@ -181,7 +186,8 @@ class Solver:
         # by v (m_i e_i^2 <= m_min v^2, m_i >= m_min), whatever the other masses (a clamp made of
         # an immovable 1e12 kg node, as tests do, leaves it alone). r^T z bounds e^T A e only for a
         # preconditioner P <= A: the factor of this step's own CSR matrix (one slice; A adds the
-        # low-rank term to it), not Jacobi's diagonal nor a factor of an older step (the fine mesh)
+        # low-rank term to it), not Jacobi's diagonal nor a factor of an older step (the fine mesh,
+        # and a factor held over steps: those steps pass no floor)
         m_min = float(m.node_mass.min()) if m.node_count else 0.0
         exact = self.precond == pcg_mod.PRECOND_FACTOR and self.factor.slices == 1
         self.cg_energy_floor = max(m_min, 0.0) * float(p["cg_velocity_floor"]) ** 2 if exact else 0.0
@@ -322,15 +328,20 @@ class Solver:
         finalize_system(self.values, self.rhs, self.grad, state.v, dt, m.node_mass, m.body_mass,
                         state.body_q, m.body_inertia_local, m.diag_slot, m.body_slots, m.body_dof0)
         t2 = clock()
-        refactored = False
+        refactored = held = False
         if self.precond == pcg_mod.PRECOND_FACTOR:
             if not self.factor.valid or (self.factor.slices > 1
                                          and self._last_iters > 4 * self.refactor_iters):
                 self.factor.refresh(m.indptr, m.indices, self.values)
                 refactored = True
+            elif not self.factor.in_progress and self.hold.keep(self._last_iters,
+                                                                 self.factor.iterations_per_factor):
+                held = True
             else:
                 catch_up = self._last_iters > self.refactor_iters and self.factor.slices > 1
                 refactored = self.factor.advance(self.values, 2 if catch_up else 1)
+            if refactored:
+                self.hold.published()
         elif self.coarse is not None:
             if not self.coarse.valid or self._last_iters > 4 * self.refactor_iters:
                 self.coarse.refresh(self.values)
@@ -348,7 +359,7 @@ class Solver:
             m.indptr, m.indices, self.values, self.rhs, state.v, self.cg_tol, self.cg_max_iter,
             self.precond, m.diag_slot, m.node_slots, m.body_slots, m.body_dof0, self._diag_inv,
             self._node_inv, self._body_inv, self._r, self._z, self._p, self._Ap, self.factor.arrays,
-            self._triplets, low_rank, self.cg_energy_floor, self._row_chunks,
+            self._triplets, low_rank, 0.0 if held else self.cg_energy_floor, self._row_chunks,
             self.coarse.arrays if self.coarse is not None else pcg_mod.NO_TWO_LEVEL)
         t4 = clock()
         self._last_iters = iters
@@ -363,7 +374,7 @@ class Solver:
             setup_ms=assembly_ms + factor_ms, solve_ms=pcg_ms + advance_ms,
             collision_ms=max(0.0, (t1 - t0) * 1e3 - self_ms), self_collision_ms=self_ms,
             assembly_ms=assembly_ms, factor_ms=factor_ms, pcg_ms=pcg_ms, advance_ms=advance_ms,
-            hit_cap=bool(cap), refactored=refactored,
+            hit_cap=bool(cap), refactored=refactored, held=held,
             contacts=int(self.contacts.count) if self.contacts is not None else 0,
             self_contacts=int(sc.count) if sc is not None else 0)
         return self.last_stats

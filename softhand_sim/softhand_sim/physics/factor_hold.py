@@ -1,0 +1,66 @@
+"""When to keep the factor preconditioner's factor instead of starting the next factorization.
+
+The factor preconditioner (pcg.Factor) used to start a new factorization as soon as the last one
+was in use: the coarse hand factored its matrix every step (one slice, ~40 % of its step), the
+fine hand always had one in progress (a slice a step). While the hand holds still, or moves little
+from one step to the next, the factor in use stays a good preconditioner for many steps: CG
+still takes one or two iterations on it, and the factorization buys nothing. Whether it will is
+known only afterwards, so the rule is the one for renting against buying (ski rental): keep the
+factor in use while the CG iterations it has cost beyond the one a fresh factor needs, summed
+since it came into use, stay under a budget worth a fraction of a factorization (`factor_hold`
+times the factorization's cost in iterations, from their flops: pcg.Factor.iterations_per_factor).
+Between two factorizations the held steps' extra iterations then cost at most that fraction of a
+factorization, plus one step's overshoot. The decision reads iteration counts only, never the
+clock: a run stays deterministic.
+
+The last held step's excess is the forecast of the next one's: once a step takes as many
+iterations beyond one as the budget has left, the next step starts a factorization. A first hold
+that fails at once (its one step over the budget: a motion too fast for even a one-step-old
+factor, such as two coarse hands at 50 Hz, 5-12 iterations) is retried only after 1, 2, 4, ...
+(at most MAX_BACKOFF) factorizations, so a fast motion pays a failed hold now and then, not
+every other step.
+"""
+
+MAX_BACKOFF = 64  # factorizations between two attempts to hold, at most
+
+
+class FactorHold:
+    """The hold decision of one solver. `fraction` = the factor_hold parameter (0: never hold, a
+    new factorization whenever the last one is done, as before it existed).
+
+        keep(last_iters, iterations_per_factor) -> bool   at a step where a factorization could start
+        published()                                        when a new factor comes into use
+    """
+
+    def __init__(self, fraction):
+        if fraction < 0.0:
+            raise ValueError(f"factor_hold={fraction}: must be >= 0")
+        self.fraction = float(fraction)
+        self.held = 0           # steps the factor in use has been held
+        self.excess = 0.0       # their CG iterations beyond one, summed
+        self.wait = 0           # factorizations to start before the next attempt to hold
+        self.backoff = 0        # the wait set after the last failed attempt
+
+    def keep(self, last_iters, iterations_per_factor):
+        """True to hold the factor in use for this step; last_iters: the last step's CG."""
+        budget = self.fraction * iterations_per_factor
+        if budget <= 0.0:
+            return False
+        over_one = max(int(last_iters) - 1, 0)
+        if self.held > 0:
+            self.excess += over_one  # the outcome of the last held step
+            if self.held == 1:       # the first one: did holding pay at all?
+                failed = self.excess >= budget
+                self.backoff = min(max(1, 2 * self.backoff), MAX_BACKOFF) if failed else 0
+                self.wait = self.backoff
+        elif self.wait > 0:
+            self.wait -= 1
+            return False
+        if self.excess + over_one >= budget:
+            return False
+        self.held += 1
+        return True
+
+    def published(self):
+        self.held = 0
+        self.excess = 0.0

@@ -1,0 +1,75 @@
+"""The factor preconditioner's factor kept over steps (factor_hold, physics/factor_hold.py): the
+rule itself, step by step, and on the hand: a held press keeps its factor for most of its steps
+and ends where a new factor every step ends; a fast motion is not held every other step."""
+import numpy as np
+import pytest
+
+from softhand_sim.commands import bench
+from softhand_sim.physics.factor_hold import MAX_BACKOFF, FactorHold
+from softhand_sim.physics.model import build_model
+from softhand_sim.physics.solver import Solver
+
+
+def test_hold_until_the_excess_iterations_reach_the_budget():
+    hold = FactorHold(0.5)  # budget 0.5 * 10 = 5 iterations beyond one, summed
+    # the held steps' iterations over one, summed, and the last one again as the next step's forecast
+    assert hold.keep(1, 10.0)        # a fresh factor's CG took one iteration: 0 + 0
+    assert hold.keep(2, 10.0)        # 1 + 1
+    assert hold.keep(2, 10.0)        # 2 + 1
+    assert hold.keep(2, 10.0)        # 3 + 1
+    assert not hold.keep(2, 10.0)    # 4 + 1 = 5: a new factorization
+    hold.published()
+    assert hold.keep(1, 10.0)        # and the new factor is held again
+    assert not FactorHold(0.0).keep(1, 10.0)  # 0: never held
+    with pytest.raises(ValueError, match="factor_hold=-1"):
+        FactorHold(-1.0)
+
+
+def test_a_hold_that_fails_at_once_backs_off():
+    """First held steps that cost the whole budget: the next attempts wait 1, 2, 4, ... factorizations;
+    one that pays resets the wait."""
+    hold = FactorHold(0.5)
+    assert hold.keep(1, 10.0)            # the first attempt
+    waits = []
+    for _ in range(9):
+        assert not hold.keep(9, 10.0)    # its step took 8 iterations over one: failed, factor
+        hold.published()
+        n = 0
+        while not hold.keep(1, 10.0):    # the factorizations before the next attempt
+            hold.published()
+            n += 1
+        waits.append(n)
+    assert waits == [1, 2, 4, 8, 16, 32, 64, MAX_BACKOFF, MAX_BACKOFF]
+    assert hold.keep(2, 10.0)            # an attempt whose first step stays under the budget ...
+    assert hold.backoff == 0 and hold.wait == 0
+
+
+def _press(factor_hold, steps=200):
+    scenes = bench.check_case("press", 1)
+    asset = bench._asset("coarse")[0]
+    model = build_model(asset, {"factor_hold": factor_hold}, objects=scenes["press"].objects(asset))
+    solver = Solver(model)
+    state, control = model.initial_state(), model.control()
+    update = scenes["press"](solver, state, control)
+    stats = []
+    for k in range(steps):
+        update(k, k * bench.DT)
+        stats.append(solver.step(state, control, bench.DT))
+    return stats, state
+
+
+def test_a_held_press_keeps_its_factor_and_its_result():
+    """The coarse hand pressing its fingertips (the benchmark's press): with factor_hold 0.5 most
+    steps keep the factor in use, and the hand ends within 1 µm of the run that factors every step
+    (the same CG tolerance)."""
+    every, state_every = _press(0.0)
+    held, state_held = _press(0.5)
+    assert sum(s.held for s in every) == 0 and sum(s.refactored for s in every) >= 190
+    n_held = sum(s.held for s in held)
+    assert n_held >= 150, n_held
+    assert sum(s.refactored for s in held) + n_held == 200
+    assert all(s.held != s.refactored for s in held)
+    assert max(s.cg_iters for s in held[100:]) <= 6
+    assert not any(s.hit_cap for s in held)
+    assert np.abs(state_held.node_x - state_every.node_x).max() < 1e-6
+    assert np.abs(state_held.body_x - state_every.body_x).max() < 1e-6
