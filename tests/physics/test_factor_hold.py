@@ -73,3 +73,24 @@ def test_a_held_press_keeps_its_factor_and_its_result():
     assert not any(s.hit_cap for s in held)
     assert np.abs(state_held.node_x - state_every.node_x).max() < 1e-6
     assert np.abs(state_held.body_x - state_every.body_x).max() < 1e-6
+
+
+def test_bench_set_reaches_the_solver_and_refuses_bad_values(capsys):
+    """`softhand bench --set factor_hold=0`: no step holds (the default holds most of the press);
+    a bad key, value or form, and the parameters with options of their own, exit 2 naming it."""
+    import json
+    argv = ["--json", "--steps", "40", "--mesh", "coarse", "--scenario", "press"]
+    assert bench.main(argv) == 0
+    default = json.loads(capsys.readouterr().out)[0]
+    assert bench.main([*argv, "--set", "factor_hold=0"]) == 0
+    off = json.loads(capsys.readouterr().out)[0]
+    assert default["factor_held"] >= 20 and default["settings"] == {}
+    assert off["factor_held"] == 0 and off["settings"] == {"factor_hold": 0.0}
+    for bad, message in (("factor_hold=-1", "'factor_hold' must be >= 0.0"),
+                         ("no_such=1", "unknown parameter 'no_such'"),
+                         ("factor_hold", "--set 'factor_hold': expected KEY=VALUE"),
+                         ("solver_threads=2", "use --threads")):
+        with pytest.raises(SystemExit) as exc:
+            bench.main([*argv, "--set", bad])
+        captured = capsys.readouterr()
+        assert exc.value.code == 2 and message in captured.err and captured.out == "", bad
