@@ -18,7 +18,9 @@ the contact rows and the tick's other messages are computed (publish_bones).
 steps: stage_<name>_ms_p50 / _p99 for runtime.STAGES (SimRuntime.step's: targets, the solver's
 collision .. advance, guard, skin, output) and NODE_STAGES (messages: building this tick's
 messages, skin marker included; publish: the publish calls, /tf included, and the rest of the
-tick), and tick_ms_p50 / _p99 for the whole tick (step_ms is SimRuntime.step alone).
+tick), and tick_ms_p50 / _p99 for the whole tick (step_ms is SimRuntime.step alone);
+factor_held_share: the share of those steps that kept the factor preconditioner's factor and
+factored nothing (factor_hold, physics/factor_hold.py).
 """
 from __future__ import annotations
 
@@ -131,6 +133,7 @@ class SimNode(Node):
         # [ms] per step; over_budget counts the steps that took longer than their period (overruns)
         self.step_ms = StepStats(window=DIAG_WINDOW, budget=1e3 * self.dt)
         self.cg_iters = StepStats(window=DIAG_WINDOW)
+        self.factor_held = StepStats(window=DIAG_WINDOW)  # 1: the step kept the factor (factor_hold)
         self.tick_ms = StepStats(window=DIAG_WINDOW)  # [ms] step + messages + publishing
         self.stage_ms = {name: StepStats(window=DIAG_WINDOW) for name in (*STAGES, *NODE_STAGES)}
         self.last_guard_warning = ""
@@ -244,6 +247,7 @@ class SimNode(Node):
         self.meter.tick()
         self.step_ms.add(1e3 * (t1 - t0 - sum(self._bones_s)))  # the step alone, as the benchmark's
         self.cg_iters.add(out.stats.cg_iters)
+        self.factor_held.add(out.stats.held)
         # the bones went out inside the step (publish_bones); now every other message of the tick
         # is built, then published (the messages and publish stages add the bones' share)
         stamp = rm.stamp_from_seconds(out.t)  # the time of the state: the end of the step
@@ -353,6 +357,7 @@ class SimNode(Node):
             "step_ms_max": self.step_ms.max(),
             "cg_iters_p50": self.cg_iters.median(),
             "cg_iters_max": int(self.cg_iters.max()) if len(self.cg_iters) else 0,
+            "factor_held_share": float(self.factor_held.values().mean()) if len(self.factor_held) else 0.0,
             "tick_ms_p50": self.tick_ms.median(), "tick_ms_p99": self.tick_ms.percentile(99),
             **self.stage_diagnostics(),
             "overruns": self.step_ms.over_budget,

@@ -94,3 +94,26 @@ def test_bench_set_reaches_the_solver_and_refuses_bad_values(capsys):
             bench.main([*argv, "--set", bad])
         captured = capsys.readouterr()
         assert exc.value.code == 2 and message in captured.err and captured.out == "", bad
+
+
+def test_a_held_step_that_hits_the_cap_is_solved_again_with_its_own_factor():
+    """A kept factor far from the step's matrix (here the factor of its diagonal alone, as after an
+    impact) and a CG cap of 5: the step factors its own matrix and goes on from where CG stopped,
+    converged and not capped, instead of handing the runtime's guard a capped step to reject."""
+    scenes = bench.check_case("free", 1)
+    asset = bench._asset("coarse")[0]
+    model = build_model(asset, {"cg_max_iterations": 5}, objects=scenes["free"].objects(asset))
+    solver = Solver(model)
+    state, control = model.initial_state(), model.control()
+    update = scenes["free"](solver, state, control)
+    for k in range(20):
+        update(k, k * bench.DT)
+        assert not solver.step(state, control, bench.DT).hit_cap
+    diagonal = np.zeros_like(solver.values)
+    diagonal[model.diag_slot] = solver.values[model.diag_slot]
+    solver.factor.refresh(model.indptr, model.indices, diagonal)
+    solver.hold.keep = lambda last_iters, iterations_per_factor: True  # hold whatever it costs
+    update(20, 20 * bench.DT)
+    st = solver.step(state, control, bench.DT)
+    assert st.refactored and not st.held and not st.hit_cap, st
+    assert st.residual <= 1e-5 and 5 < st.cg_iters <= 8, st

@@ -128,6 +128,7 @@ def test_two_hands_publish_per_side(ros_env):
               "step_ms_p50", "step_ms_p99", "stage_messages_ms_p50", "stage_publish_ms_p50", "tick_ms_p50",
               "tick_ms_p99", "overruns", "sim_rate_hz")))
     assert rate > 0.75 * SIM_RATE
+    assert 0.0 <= float(both["factor_held_share"]) <= 1.0  # the steps that kept the factor (factor_hold)
     # each hand ends at its targets: the right hovering at +y; the left at -y, pushed up by the table
     # (4 N on the 500 N/m palm coupling: ~8 mm in SimRuntime alone)
     right, left = (rm.pose_array_to_numpy(bones[s].msgs[-1])[0] for s in SIDES)

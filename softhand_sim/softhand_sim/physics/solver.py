@@ -355,12 +355,17 @@ class Solver:
         # iterations). The solution is the same to the CG tolerance; a worse guess after a jump or
         # an impact only costs iterations
         _extrapolate_guess(state.v, self._v_prev, self._v_scratch)
-        iters, res, cap = pcg_mod.pcg(
-            m.indptr, m.indices, self.values, self.rhs, state.v, self.cg_tol, self.cg_max_iter,
-            self.precond, m.diag_slot, m.node_slots, m.body_slots, m.body_dof0, self._diag_inv,
-            self._node_inv, self._body_inv, self._r, self._z, self._p, self._Ap, self.factor.arrays,
-            self._triplets, low_rank, 0.0 if held else self.cg_energy_floor, self._row_chunks,
-            self.coarse.arrays if self.coarse is not None else pcg_mod.NO_TWO_LEVEL)
+        iters, res, cap = self._pcg(state, low_rank, 0.0 if held else self.cg_energy_floor)
+        if held and cap:
+            # a kept factor too far from this step's matrix (an impact, a sudden load): the step's
+            # own factor, and CG again from where it stopped, rather than a step the guard rejects
+            t_refresh = clock()
+            self.factor.refresh(m.indptr, m.indices, self.values)
+            self.hold.published()
+            refactored, held = True, False
+            t3 += clock() - t_refresh  # counted in the factor stage, not in pcg
+            more, res, cap = self._pcg(state, low_rank, self.cg_energy_floor)
+            iters += more
         t4 = clock()
         self._last_iters = iters
         _advance(state.node_x, state.v, state.body_x, state.body_q, state.body_pose,
@@ -378,6 +383,16 @@ class Solver:
             contacts=int(self.contacts.count) if self.contacts is not None else 0,
             self_contacts=int(sc.count) if sc is not None else 0)
         return self.last_stats
+
+    def _pcg(self, state, low_rank, energy_floor):
+        """PCG on this step's system from state.v (solved in place): (iterations, residual, capped)."""
+        m = self.model
+        return pcg_mod.pcg(
+            m.indptr, m.indices, self.values, self.rhs, state.v, self.cg_tol, self.cg_max_iter,
+            self.precond, m.diag_slot, m.node_slots, m.body_slots, m.body_dof0, self._diag_inv,
+            self._node_inv, self._body_inv, self._r, self._z, self._p, self._Ap, self.factor.arrays,
+            self._triplets, low_rank, energy_floor, self._row_chunks,
+            self.coarse.arrays if self.coarse is not None else pcg_mod.NO_TWO_LEVEL)
 
     # ---- read-out
     def skin_positions(self, state, out=None):
