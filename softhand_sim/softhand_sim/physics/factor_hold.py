@@ -18,8 +18,10 @@ iterations beyond one as the budget has left, the next step starts a factorizati
 that fails at once (its one step over the budget: a motion too fast for even a one-step-old
 factor, such as two coarse hands at 50 Hz, 5-12 iterations) is retried only after 1, 2, 4, ...
 (at most MAX_BACKOFF) factorizations, so a fast motion pays a failed hold now and then, not
-every other step. A held step whose CG hits its cap factors its own matrix and goes on
-(Solver.step): a kept factor never costs a rejected step.
+every other step. On a kept factor CG may take at most a factorization's worth of iterations;
+a held step that needs more factors its own matrix and goes on from where CG stopped
+(Solver.step): a kept factor never costs more than about two factorizations' time in a step, nor
+a rejected step.
 """
 
 MAX_BACKOFF = 64  # factorizations between two attempts to hold, at most

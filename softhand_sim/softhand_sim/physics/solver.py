@@ -355,19 +355,27 @@ class Solver:
         # iterations). The solution is the same to the CG tolerance; a worse guess after a jump or
         # an impact only costs iterations
         _extrapolate_guess(state.v, self._v_prev, self._v_scratch)
-        iters, res, cap = self._pcg(state, low_rank, 0.0 if held else self.cg_energy_floor)
-        if held and cap:
-            # a kept factor too far from this step's matrix (an impact, a sudden load): the step's
-            # own factor, and CG again from where it stopped, rather than a step the guard rejects
-            t_refresh = clock()
-            self.factor.refresh(m.indptr, m.indices, self.values)
-            self.hold.published()
-            refactored, held = True, False
-            t3 += clock() - t_refresh  # counted in the factor stage, not in pcg
-            more, res, cap = self._pcg(state, low_rank, self.cg_energy_floor)
-            iters += more
+        if not held:
+            iters, res, cap = self._pcg(state, low_rank, self.cg_energy_floor, self.cg_max_iter)
+            self._last_iters = iters
+        else:
+            # on a kept factor CG may take at most a factorization's worth of iterations: a factor
+            # too far from this step's matrix (a jump of the tracked hand, an impact: 99 iterations
+            # once in leap_roll_pitch) is replaced by the step's own, and CG goes on from where it
+            # stopped, rather than spend several factorizations or hand the guard a capped step
+            limit = min(self.cg_max_iter, max(2, int(np.ceil(self.factor.iterations_per_factor))))
+            iters, res, cap = self._pcg(state, low_rank, 0.0, limit)
+            self._last_iters = iters
+            if cap:
+                t_refresh = clock()
+                self.factor.refresh(m.indptr, m.indices, self.values)
+                self.hold.published()
+                refactored, held = True, False
+                t3 += clock() - t_refresh  # counted in the factor stage, not in pcg
+                more, res, cap = self._pcg(state, low_rank, self.cg_energy_floor, self.cg_max_iter)
+                iters += more
+                self._last_iters = more  # what the fresh factor needs: the next step's forecast
         t4 = clock()
-        self._last_iters = iters
         _advance(state.node_x, state.v, state.body_x, state.body_q, state.body_pose,
                  m.body_com_local, dt, m.body_dof0)
         t5 = clock()
@@ -384,11 +392,11 @@ class Solver:
             self_contacts=int(sc.count) if sc is not None else 0)
         return self.last_stats
 
-    def _pcg(self, state, low_rank, energy_floor):
+    def _pcg(self, state, low_rank, energy_floor, max_iter):
         """PCG on this step's system from state.v (solved in place): (iterations, residual, capped)."""
         m = self.model
         return pcg_mod.pcg(
-            m.indptr, m.indices, self.values, self.rhs, state.v, self.cg_tol, self.cg_max_iter,
+            m.indptr, m.indices, self.values, self.rhs, state.v, self.cg_tol, max_iter,
             self.precond, m.diag_slot, m.node_slots, m.body_slots, m.body_dof0, self._diag_inv,
             self._node_inv, self._body_inv, self._r, self._z, self._p, self._Ap, self.factor.arrays,
             self._triplets, low_rank, energy_floor, self._row_chunks,
