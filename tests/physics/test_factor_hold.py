@@ -42,6 +42,10 @@ def test_a_hold_that_fails_at_once_backs_off():
     assert waits == [1, 2, 4, 8, 16, 32, 64, MAX_BACKOFF, MAX_BACKOFF]
     assert hold.keep(2, 10.0)            # an attempt whose first step stays under the budget ...
     assert hold.backoff == 0 and hold.wait == 0
+    hold.rescued()                       # a held step that had to factor: a failed attempt too
+    assert (hold.backoff, hold.wait, hold.held, hold.excess) == (1, 1, 0, 0.0)
+    assert not hold.keep(1, 10.0)        # one factorization before the next attempt
+    assert hold.keep(1, 10.0)
 
 
 def _press(factor_hold, steps=200):

@@ -33,6 +33,7 @@ class FactorHold:
 
         keep(last_iters, iterations_per_factor) -> bool   at a step where a factorization could start
         published()                                        when a new factor comes into use
+        rescued()                                          when a held step had to factor (Solver.step)
     """
 
     def __init__(self, fraction):
@@ -67,3 +68,10 @@ class FactorHold:
     def published(self):
         self.held = 0
         self.excess = 0.0
+
+    def rescued(self):
+        """A held step's CG ran past its limit and the step factored its own matrix: a failed
+        hold (it backs off as one), and the new factor in use."""
+        self.backoff = min(max(1, 2 * self.backoff), MAX_BACKOFF)
+        self.wait = self.backoff
+        self.published()

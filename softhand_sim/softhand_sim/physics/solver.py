@@ -369,7 +369,7 @@ class Solver:
             if cap:
                 t_refresh = clock()
                 self.factor.refresh(m.indptr, m.indices, self.values)
-                self.hold.published()
+                self.hold.rescued()
                 refactored, held = True, False
                 t3 += clock() - t_refresh  # counted in the factor stage, not in pcg
                 more, res, cap = self._pcg(state, low_rank, self.cg_energy_floor, self.cg_max_iter)
