@@ -48,13 +48,19 @@ def test_a_hold_that_fails_at_once_backs_off():
     assert hold.keep(1, 10.0)
 
 
-def _press(factor_hold, steps=200):
-    scenes = bench.check_case("press", 1)
+def _scene(name, params):
+    """The coarse hand in the benchmark's scenario `name` with solver `params`: (model, solver,
+    state, control, update(k, t))."""
+    scenes = bench.check_case(name, 1)
     asset = bench._asset("coarse")[0]
-    model = build_model(asset, {"factor_hold": factor_hold}, objects=scenes["press"].objects(asset))
+    model = build_model(asset, params, objects=scenes[name].objects(asset))
     solver = Solver(model)
     state, control = model.initial_state(), model.control()
-    update = scenes["press"](solver, state, control)
+    return model, solver, state, control, scenes[name](solver, state, control)
+
+
+def _press(factor_hold, steps=200):
+    _, solver, state, control, update = _scene("press", {"factor_hold": factor_hold})
     stats = []
     for k in range(steps):
         update(k, k * bench.DT)
@@ -107,12 +113,7 @@ def test_a_held_step_whose_cg_runs_long_is_solved_again_with_its_own_factor(cap)
     hand) or at the cap if lower, then the step factors its own matrix and goes on from where CG
     stopped, converged and not capped: no step runs up a long CG on a kept factor, nor hands the
     runtime's guard a capped step to reject."""
-    scenes = bench.check_case("free", 1)
-    asset = bench._asset("coarse")[0]
-    model = build_model(asset, {"cg_max_iterations": cap}, objects=scenes["free"].objects(asset))
-    solver = Solver(model)
-    state, control = model.initial_state(), model.control()
-    update = scenes["free"](solver, state, control)
+    model, solver, state, control, update = _scene("free", {"cg_max_iterations": cap})
     for k in range(20):
         update(k, k * bench.DT)
         assert not solver.step(state, control, bench.DT).hit_cap
