@@ -355,26 +355,23 @@ class Solver:
         # iterations). The solution is the same to the CG tolerance; a worse guess after a jump or
         # an impact only costs iterations
         _extrapolate_guess(state.v, self._v_prev, self._v_scratch)
-        if not held:
-            iters, res, cap = self._pcg(state, low_rank, self.cg_energy_floor, self.cg_max_iter)
-            self._last_iters = iters
-        else:
-            # on a kept factor CG may take at most a factorization's worth of iterations: a factor
-            # too far from this step's matrix (a jump of the tracked hand, an impact: 99 iterations
-            # once in leap_roll_pitch) is replaced by the step's own, and CG goes on from where it
-            # stopped, rather than spend several factorizations or hand the guard a capped step
-            limit = min(self.cg_max_iter, max(2, int(np.ceil(self.factor.iterations_per_factor))))
-            iters, res, cap = self._pcg(state, low_rank, 0.0, limit)
-            self._last_iters = iters
-            if cap:
-                t_refresh = clock()
-                self.factor.refresh(m.indptr, m.indices, self.values)
-                self.hold.rescued()
-                refactored, held = True, False
-                t3 += clock() - t_refresh  # counted in the factor stage, not in pcg
-                more, res, cap = self._pcg(state, low_rank, self.cg_energy_floor, self.cg_max_iter)
-                iters += more
-                self._last_iters = more  # what the fresh factor needs: the next step's forecast
+        # on a kept factor CG may take at most a factorization's worth of iterations: a factor too
+        # far from this step's matrix (a jump of the tracked hand, an impact: 99 iterations once in
+        # leap_roll_pitch) is replaced by the step's own, and CG goes on from where it stopped,
+        # rather than spend several factorizations or hand the guard a capped step
+        limit = (min(self.cg_max_iter, max(2, int(np.ceil(self.factor.iterations_per_factor))))
+                 if held else self.cg_max_iter)
+        iters, res, cap = self._pcg(state, low_rank, 0.0 if held else self.cg_energy_floor, limit)
+        self._last_iters = iters
+        if held and cap:
+            t_refresh = clock()
+            self.factor.refresh(m.indptr, m.indices, self.values)
+            self.hold.rescued()
+            refactored, held = True, False
+            t3 += clock() - t_refresh  # counted in the factor stage, not in pcg
+            more, res, cap = self._pcg(state, low_rank, self.cg_energy_floor, self.cg_max_iter)
+            iters += more
+            self._last_iters = more  # what the fresh factor needs: the next step's forecast
         t4 = clock()
         _advance(state.node_x, state.v, state.body_x, state.body_q, state.body_pose,
                  m.body_com_local, dt, m.body_dof0)
