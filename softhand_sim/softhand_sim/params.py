@@ -160,12 +160,12 @@ SIM = {
     "factor_refresh_iterations": P(int, 8, "-", "factor preconditioner: refresh twice as fast after a CG that took "
                                    "more iterations than this, and factor the next step's matrix whole after one "
                                    "that took more than 4 times this", 0, 100000),
-    "factor_hold": P(float, 0.5, "-", "factor preconditioner: keep the factor in use, and start no new "
+    "factor_hold": P(float, 1.0, "-", "factor preconditioner: keep the factor in use, and start no new "
                      "factorization, while the CG iterations it costs beyond one a step, summed since it "
                      "came into use, stay under this fraction of a factorization's cost (counted in "
                      "iterations from their flops; physics/factor_hold.py): a hand that holds still or "
-                     "moves little reuses its factor for many steps; 0: a new factorization as soon as the "
-                     "last is done", 0.0, 100.0),
+                     "moves little reuses its factor for many steps; 1: until the held steps have cost "
+                     "one factorization; 0: a new factorization as soon as the last is done", 0.0, 100.0),
     "two_level_refresh_steps": P(int, 12, "-", "two_level preconditioner: its coarse matrix P^T A P and that matrix's "
                                  "factor computed anew every this many steps, spread over them (the whole of it "
                                  "after a CG that took more than 4 times factor_refresh_iterations)", 1, 100000),

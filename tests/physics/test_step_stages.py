@@ -90,7 +90,8 @@ def test_stage_profile_by_hand():
 
 def test_bench_profile_json_has_every_stage(capsys):
     """`softhand bench --profile --json --steps N`: each row has every stage with a median <= p99
-    and a share in [0, 1], the shares adding up to 1; without --profile the rows are as before."""
+    and a share in [0, 1], the shares adding up to 1, and with the factor preconditioner the
+    factor's cost measured and estimated; without --profile the rows are as before."""
     assert bench.main(["--profile", "--json", "--steps", "5", "--mesh", "coarse", "--scenario", "free"]) == 0
     rows = json.loads(capsys.readouterr().out)
     assert len(rows) == 1
@@ -101,11 +102,22 @@ def test_bench_profile_json_has_every_stage(capsys):
         assert 0.0 <= s["median_ms"] <= s["p99_ms"], name
         assert 0.0 <= s["share"] <= 1.0, name
     assert sum(s["share"] for s in stages.values()) == pytest.approx(1.0)
+    # the factor's cost model against this machine: a factorization and an iteration timed
+    cost = rows[0]["factor_cost"]
+    assert set(cost) == {"factor_ms", "iteration_ms", "measured", "estimated", "slices"}
+    assert cost["factor_ms"] > 0.0 and cost["iteration_ms"] > 0.0 and cost["slices"] == 1
+    assert cost["measured"] == pytest.approx(cost["factor_ms"] / cost["iteration_ms"])
+    assert cost["estimated"] > 1.0
     assert bench.main(["--json", "--steps", "2", "--mesh", "coarse", "--scenario", "free"]) == 0
-    assert "stages" not in json.loads(capsys.readouterr().out)[0]
+    plain = json.loads(capsys.readouterr().out)[0]
+    assert "stages" not in plain and "factor_cost" not in plain
     assert bench.main(["--profile", "--steps", "2", "--mesh", "coarse", "--scenario", "free"]) == 0
     text = capsys.readouterr().out
     assert "profile: free, coarse" in text and all(f" {n} " in text for n in stages)
+    assert "CG iterations of" in text and "estimated from flops" in text
+    assert bench.main(["--profile", "--json", "--steps", "2", "--mesh", "coarse", "--scenario", "free",
+                       "--preconditioner", "block_jacobi"]) == 0
+    assert "factor_cost" not in json.loads(capsys.readouterr().out)[0]  # no factor to time
 
 
 def test_self_contact_model_follows_the_mesh_within_one_bench():

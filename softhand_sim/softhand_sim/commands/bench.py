@@ -34,6 +34,10 @@ the one-core figures are --threads 1, the default. `--threads 1,2` runs both, on
 mesh; on the coarse one its coarse level is the hand's own mesh, a whole factor every
 two_level_refresh_steps steps.
 
+With the factor preconditioner --profile also times a whole factorization and a CG iteration
+after the run (`factor_cost`: factor_ms, iteration_ms, their ratio `measured` and the cost model's
+`estimated` ratio, which factor_hold's budget and the slice count read: pcg.Factor.analyse).
+
 --set KEY=VALUE: a sim_node solver parameter for every case (`softhand params sim_node`), e.g.
 `--set factor_hold=0` for the factor preconditioner with a new factorization as soon as the last
 is done, as before factor_hold (physics/factor_hold.py); `factor_held` counts the steps that kept
@@ -390,7 +394,44 @@ def run(scenario, mesh, steps, preconditioner, hands=1, profile=False, threads=1
     }
     if profile:
         row["stages"] = stage_profile(ms, stage_ms)
+        if preconditioner == "factor":
+            row["factor_cost"] = factor_cost(solver, state)
     return row
+
+
+def factor_cost(solver, state, repeats=7):
+    """The factor preconditioner's cost model (pcg.Factor.analyse) against this machine: a whole
+    factorization of the last step's matrix and one CG iteration on it, timed after the run (medians
+    of `repeats`; an iteration = the difference between CG runs of 12 and 2 iterations at tolerance
+    0, over 10). {factor_ms, iteration_ms, measured: their ratio, estimated: the model's, slices}.
+    factor_hold's budget, the kept factor's iteration limit and the slice count all read the
+    estimate: far from the measured ratio, they are off by as much."""
+    from softhand_sim.physics.pcg import NO_LOW_RANK
+    m, f, clock = solver.model, solver.factor, time.perf_counter
+    v0, tol = state.v.copy(), solver.cg_tol
+
+    def timed(call):
+        t = []
+        for _ in range(repeats):
+            t0 = clock()
+            call()
+            t.append(clock() - t0)
+        return float(np.median(t)) * 1e3
+
+    def cg(n):
+        state.v[:] = v0
+        solver._pcg(state, NO_LOW_RANK, 0.0, n)
+
+    factor_ms = timed(lambda: f.refresh(m.indptr, m.indices, solver.values))
+    solver.cg_tol = 0.0  # every run to its cap
+    try:
+        iteration_ms = (timed(lambda: cg(12)) - timed(lambda: cg(2))) / 10.0
+    finally:
+        solver.cg_tol = tol
+        state.v[:] = v0
+    return {"factor_ms": factor_ms, "iteration_ms": iteration_ms,
+            "measured": factor_ms / iteration_ms if iteration_ms > 0 else float("nan"),
+            "estimated": float(f.iterations_per_factor), "slices": int(f.slices)}
 
 
 COLUMNS = ["hands", "threads", "scenario", "mesh", "tets", "dofs", "preconditioner", "median_ms", "p99_ms",
@@ -419,6 +460,11 @@ def format_profile(row):
              f"{'stage':>15} {'median_ms':>10} {'p99_ms':>10} {'share':>7}"]
     for name, s in row["stages"].items():
         lines.append(f"{name:>15} {s['median_ms']:>10.3f} {s['p99_ms']:>10.3f} {100 * s['share']:>6.1f}%")
+    c = row.get("factor_cost")
+    if c:
+        lines.append(f"factor: {c['factor_ms']:.3f} ms = {c['measured']:.1f} CG iterations of "
+                     f"{c['iteration_ms']:.4f} ms (estimated from flops: {c['estimated']:.1f}; "
+                     f"{c['slices']} slice(s))")
     return "\n".join(lines)
 
 

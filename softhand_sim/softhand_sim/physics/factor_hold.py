@@ -10,8 +10,12 @@ factor in use while the CG iterations it has cost beyond the one a fresh factor 
 since it came into use, stay under a budget worth a fraction of a factorization (`factor_hold`
 times the factorization's cost in iterations, from their flops: pcg.Factor.iterations_per_factor).
 Between two factorizations the held steps' extra iterations then cost at most that fraction of a
-factorization, plus one step's overshoot. The decision reads iteration counts only, never the
-clock: a run stays deterministic.
+factorization, plus one step's overshoot. At 1, the default, that is renting until the rent paid
+equals the price of buying, the break-even rule: each hold taken alone, whatever the motion, it
+costs at most about twice what the best choice made knowing the motion in advance would. The
+unit is only as good as the cost model that converts a factorization into iterations
+(pcg.Factor.analyse; `softhand bench --profile` prints it against the measured one). The decision
+reads iteration counts only, never the clock: a run stays deterministic.
 
 The last held step's excess is the forecast of the next one's: once a step takes as many
 iterations beyond one as the budget has left, the next step starts a factorization. A first hold

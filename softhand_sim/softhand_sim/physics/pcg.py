@@ -67,10 +67,16 @@ class Factor:
         self.sym = sym = Symbolic(indptr, indices, self.n, groups=self.groups)
         self.nnz = sym.nnz_L
         # the factor F and one CG iteration c (LDLᵀ solve + matvec) estimated from their flops
-        # and the speeds measured for these kernels (~4, ~7, ~2 GFlop/s); F / c is what a
-        # factorization costs in iterations (the factor_hold rule's unit, factor_hold.py)
-        t_factor = sym.flops / 4e9
-        t_iter = 36.0 * sym.nnz_L / 7e9 + 2.0 * len(indices) / 2e9
+        # and the speeds these kernels run at (the factor 11.6 GFlop/s after ~50 µs of its own,
+        # the solves 9 GFlop/s, the matvec 4): F / c is what a factorization costs in iterations,
+        # the factor_hold rule's unit (factor_hold.py) and the slices' count below. Fitted to
+        # `softhand bench --profile`'s factor_cost on this machine: the factor 0.27 / 15.9 ms, an
+        # iteration 0.039 / 0.42 ms (coarse / fine hand). Until those were measured the estimate
+        # assumed 4, 7 and 2 GFlop/s: 9.6 / 74 iterations against 6.8 / 38 measured, and the fine
+        # hand's factor came in 12 slices instead of 6 (docs/MEASUREMENTS.md, "The factor's cost
+        # measured")
+        t_factor = 5e-5 + sym.flops / 11.6e9
+        t_iter = 36.0 * sym.nnz_L / 9e9 + 2.0 * len(indices) / 4e9
         self.iterations_per_factor = t_factor / t_iter
         if self.slice_flops is None:
             # K minimizing F/K + c it(K) with it(K) ~ 1 + 4 log2 K (measured on the hands: 1, 5,

@@ -2,8 +2,9 @@
 correction on the coarse hand's mesh (the `two_level` preconditioner of pcg.py).
 
 The factor preconditioner's cost grows with its factor L (the fine hand: 75,708 3x3 blocks, a
-full factorization 15-28 ms, spread over 12 steps, and CG iterating on a factor up to 24 steps
-old). This one needs no factor of the fine system. One application is a symmetric V-cycle:
+full factorization 15-28 ms, spread over 6 steps, and CG iterating on a factor up to 12 steps
+old; 12 and 24 when this was built). This one needs no factor of the fine system. One
+application is a symmetric V-cycle:
 
   1. a forward Gauss-Seidel sweep on the fine CSR matrix A from z = 0;
   2. the residual r - A z restricted to the coarse level (Pᵀ), solved there with the coarse
