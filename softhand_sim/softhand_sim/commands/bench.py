@@ -402,8 +402,9 @@ def run(scenario, mesh, steps, preconditioner, hands=1, profile=False, threads=1
 def factor_cost(solver, state, repeats=7):
     """The factor preconditioner's cost model (pcg.Factor.analyse) against this machine: a whole
     factorization of the last step's matrix and one CG iteration on it, timed after the run (medians
-    of `repeats`; an iteration = the difference between CG runs of 12 and 2 iterations at tolerance
-    0, over 10). {factor_ms, iteration_ms, measured: their ratio, estimated: the model's, slices}.
+    of `repeats`; an iteration = the difference between CG runs capped at 12 and 2 iterations at
+    tolerance 0, over the difference of the iterations they ran). {factor_ms, iteration_ms,
+    measured: their ratio, estimated: the model's, slices}.
     factor_hold's budget, the kept factor's iteration limit and the slice count all read the
     estimate: far from the measured ratio, they are off by as much."""
     from softhand_sim.physics.pcg import NO_LOW_RANK
@@ -414,18 +415,19 @@ def factor_cost(solver, state, repeats=7):
         t = []
         for _ in range(repeats):
             t0 = clock()
-            call()
+            out = call()
             t.append(clock() - t0)
-        return float(np.median(t)) * 1e3
+        return float(np.median(t)) * 1e3, out
 
     def cg(n):
         state.v[:] = v0
-        solver._pcg(state, NO_LOW_RANK, 0.0, n)
+        return solver._pcg(state, NO_LOW_RANK, 0.0, n)[0]
 
-    factor_ms = timed(lambda: f.refresh(m.indptr, m.indices, solver.values))
-    solver.cg_tol = 0.0  # every run to its cap
+    factor_ms = timed(lambda: f.refresh(m.indptr, m.indices, solver.values))[0]
+    solver.cg_tol = 0.0  # every run to its cap (unless the residual vanishes exactly)
     try:
-        iteration_ms = (timed(lambda: cg(12)) - timed(lambda: cg(2))) / 10.0
+        (long_ms, n_long), (short_ms, n_short) = timed(lambda: cg(12)), timed(lambda: cg(2))
+        iteration_ms = (long_ms - short_ms) / (n_long - n_short) if n_long > n_short else float("nan")
     finally:
         solver.cg_tol = tol
         state.v[:] = v0
