@@ -166,6 +166,11 @@ SIM = {
                      "iterations from their flops; physics/factor_hold.py): a hand that holds still or "
                      "moves little reuses its factor for many steps; 1: until the held steps have cost "
                      "one factorization; 0: a new factorization as soon as the last is done", 0.0, 100.0),
+    "factor_cost_scale": P(float, 1.0, "-", "factor preconditioner: multiplies the estimated cost of a "
+                           "factorization in CG iterations (from the flops of both and kernel speeds measured on "
+                           "the project's 2-core test machine), factor_hold's unit and what sets the slice count; "
+                           "`softhand bench --profile` measures the ratio on your machine and prints the value "
+                           "that matches it", 0.01, 100.0),
     "two_level_refresh_steps": P(int, 12, "-", "two_level preconditioner: its coarse matrix P^T A P and that matrix's "
                                  "factor computed anew every this many steps, spread over them (the whole of it "
                                  "after a CG that took more than 4 times factor_refresh_iterations)", 1, 100000),

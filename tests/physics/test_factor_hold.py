@@ -128,3 +128,17 @@ def test_a_held_step_whose_cg_runs_long_is_solved_again_with_its_own_factor(cap)
     assert st.refactored and not st.held and not st.hit_cap, st
     assert st.residual <= 1e-5 and limit < st.cg_iters <= limit + 3, st
     assert solver._last_iters == st.cg_iters - limit  # the next step's forecast: the fresh factor's
+
+
+def test_factor_cost_scale_scales_the_unit_and_the_slices():
+    """factor_cost_scale (for a machine whose kernels run at other speeds than the estimate's)
+    multiplies a factorization's estimated cost in CG iterations, so factor_hold's budget and the
+    kept factor's limit with it, and the slice count K = 0.17 x that cost (K = 1 on the coarse hand
+    at 6.7 iterations, 2 at twice that); `softhand bench --set` refuses a scale of 0."""
+    _, default, *_ = _scene("press", {})
+    _, doubled, *_ = _scene("press", {"factor_cost_scale": 2.0})
+    assert doubled.factor.iterations_per_factor == pytest.approx(2.0 * default.factor.iterations_per_factor)
+    assert default.factor.slices == 1
+    assert doubled.factor.slices == int(0.17 * doubled.factor.iterations_per_factor) == 2
+    with pytest.raises(ValueError, match="factor_cost_scale"):
+        bench.parse_settings(["factor_cost_scale=0"])

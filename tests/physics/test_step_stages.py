@@ -104,17 +104,18 @@ def test_bench_profile_json_has_every_stage(capsys):
     assert sum(s["share"] for s in stages.values()) == pytest.approx(1.0)
     # the factor's cost model against this machine: a factorization and an iteration timed
     cost = rows[0]["factor_cost"]
-    assert set(cost) == {"factor_ms", "iteration_ms", "measured", "estimated", "slices"}
+    assert set(cost) == {"factor_ms", "iteration_ms", "measured", "estimated", "slices", "matching_scale"}
     assert cost["factor_ms"] > 0.0 and cost["iteration_ms"] > 0.0 and cost["slices"] == 1
     assert cost["measured"] == pytest.approx(cost["factor_ms"] / cost["iteration_ms"])
     assert cost["estimated"] > 1.0
+    assert cost["matching_scale"] == pytest.approx(cost["measured"] / cost["estimated"])  # scale 1 here
     assert bench.main(["--json", "--steps", "2", "--mesh", "coarse", "--scenario", "free"]) == 0
     plain = json.loads(capsys.readouterr().out)[0]
     assert "stages" not in plain and "factor_cost" not in plain
     assert bench.main(["--profile", "--steps", "2", "--mesh", "coarse", "--scenario", "free"]) == 0
     text = capsys.readouterr().out
     assert "profile: free, coarse" in text and all(f" {n} " in text for n in stages)
-    assert "CG iterations of" in text and "estimated from flops" in text
+    assert "CG iterations of" in text and "estimated from flops" in text and "factor_cost_scale=" in text
     assert bench.main(["--profile", "--json", "--steps", "2", "--mesh", "coarse", "--scenario", "free",
                        "--preconditioner", "block_jacobi"]) == 0
     assert "factor_cost" not in json.loads(capsys.readouterr().out)[0]  # no factor to time

@@ -36,7 +36,8 @@ two_level_refresh_steps steps.
 
 With the factor preconditioner --profile also times a whole factorization and a CG iteration
 after the run (`factor_cost`: factor_ms, iteration_ms, their ratio `measured` and the cost model's
-`estimated` ratio, which factor_hold's budget and the slice count read: pcg.Factor.analyse).
+`estimated` ratio, which factor_hold's budget and the slice count read: pcg.Factor.analyse; and
+`matching_scale`, the factor_cost_scale that would make them agree on this machine).
 
 --set KEY=VALUE: a sim_node solver parameter for every case (`softhand params sim_node`), e.g.
 `--set factor_hold=0` for the factor preconditioner with a new factorization as soon as the last
@@ -404,7 +405,8 @@ def factor_cost(solver, state, repeats=7):
     factorization of the last step's matrix and one CG iteration on it, timed after the run (medians
     of `repeats`; an iteration = the difference between CG runs capped at 12 and 2 iterations at
     tolerance 0, over the difference of the iterations they ran). {factor_ms, iteration_ms,
-    measured: their ratio, estimated: the model's, slices}.
+    measured: their ratio, estimated: the model's, slices, matching_scale: the factor_cost_scale
+    that would make the estimate the measured ratio}.
     factor_hold's budget, the kept factor's iteration limit and the slice count all read the
     estimate: far from the measured ratio, they are off by as much."""
     from softhand_sim.physics.pcg import NO_LOW_RANK
@@ -431,9 +433,10 @@ def factor_cost(solver, state, repeats=7):
     finally:
         solver.cg_tol = tol
         state.v[:] = v0
-    return {"factor_ms": factor_ms, "iteration_ms": iteration_ms,
-            "measured": factor_ms / iteration_ms if iteration_ms > 0 else float("nan"),
-            "estimated": float(f.iterations_per_factor), "slices": int(f.slices)}
+    measured = factor_ms / iteration_ms if iteration_ms > 0 else float("nan")
+    return {"factor_ms": factor_ms, "iteration_ms": iteration_ms, "measured": measured,
+            "estimated": float(f.iterations_per_factor), "slices": int(f.slices),
+            "matching_scale": f.cost_scale * measured / f.iterations_per_factor}
 
 
 COLUMNS = ["hands", "threads", "scenario", "mesh", "tets", "dofs", "preconditioner", "median_ms", "p99_ms",
@@ -466,7 +469,8 @@ def format_profile(row):
     if c:
         lines.append(f"factor: {c['factor_ms']:.3f} ms = {c['measured']:.1f} CG iterations of "
                      f"{c['iteration_ms']:.4f} ms (estimated from flops: {c['estimated']:.1f}; "
-                     f"{c['slices']} slice(s))")
+                     f"{c['slices']} slice(s); --set factor_cost_scale={c['matching_scale']:.2f} "
+                     f"would match)")
     return "\n".join(lines)
 
 
@@ -489,7 +493,9 @@ def main(argv=None):
                          "factorization and solves on two cores (--hands 2 only; the default 1 is the "
                          "one-core figure)")
     ap.add_argument("--profile", action="store_true",
-                    help="split the step into its stages (median, p99, share of the step per stage)")
+                    help="split the step into its stages (median, p99, share of the step per stage); "
+                         "with the factor preconditioner also time a factorization against a CG "
+                         "iteration (the factor_hold unit; factor_cost_scale to match)")
     ap.add_argument("--set", action="append", metavar="KEY=VALUE", dest="settings",
                     help="a sim_node solver parameter for every case (repeat for several), e.g. "
                          "--set factor_hold=0 (`softhand params sim_node` lists them)")

@@ -42,7 +42,7 @@ class Factor:
     entries are empty on one thread)."""
 
     def __init__(self, n, indptr=None, indices=None, slice_flops=None, max_slices=50, groups=None,
-                 threads=1):
+                 threads=1, cost_scale=1.0):
         self.n = n
         self.valid = False
         self.sym = None
@@ -53,6 +53,9 @@ class Factor:
                        np.arange(nb, dtype=np.int32), np.zeros(n)) + self._serial
         self.slice_flops, self.max_slices = slice_flops, max_slices
         self.iterations_per_factor = 0.0  # a factorization's cost in CG iterations (analyse)
+        self.cost_scale = float(cost_scale)  # ... times the estimate (factor_cost_scale)
+        if not self.cost_scale > 0.0:
+            raise ValueError(f"cost_scale={cost_scale}: must be > 0")
         self.groups = groups  # block groups ordered apart (ldlt.grouped_order): one per hand
         self.threads = int(threads)
         if self.threads < 1:
@@ -77,11 +80,12 @@ class Factor:
         # measured")
         t_factor = 5e-5 + sym.flops / 11.6e9
         t_iter = 36.0 * sym.nnz_L / 9e9 + 2.0 * len(indices) / 4e9
-        self.iterations_per_factor = t_factor / t_iter
+        # (on a machine whose kernels run at other speeds, factor_cost_scale corrects it)
+        self.iterations_per_factor = self.cost_scale * t_factor / t_iter
         if self.slice_flops is None:
             # K minimizing F/K + c it(K) with it(K) ~ 1 + 4 log2 K (measured on the hands: 1, 5,
             # 7, 9, 14 iterations for K = 1, 2, 4, 8, 16): K = F ln2 / (4 c)
-            want = int(0.17 * t_factor / t_iter)  # rounded down: K = 2 costs 4 more iterations
+            want = int(0.17 * self.iterations_per_factor)  # rounded down: K = 2 costs 4 more iterations
         else:
             want = int(np.ceil(sym.flops / self.slice_flops))
         self.slices = int(np.clip(want, 1, self.max_slices))

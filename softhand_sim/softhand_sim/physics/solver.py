@@ -166,7 +166,8 @@ class Solver:
                                  f"(NUMBA_NUM_THREADS, default the core count)")
         groups = hand_block_groups(m)
         self.factor = (pcg_mod.Factor(model.dof_count, m.indptr, m.indices, max_slices=self.refactor_every,
-                                      groups=groups, threads=self.threads)
+                                      groups=groups, threads=self.threads,
+                                      cost_scale=float(p["factor_cost_scale"]))
                        if self.precond == pcg_mod.PRECOND_FACTOR else pcg_mod.Factor(model.dof_count))
         # two-level preconditioner: the coarse hand's mesh as its coarse level (two_level.py), its
         # matrix computed anew over every two_level_refresh_steps steps (whole after a long CG)
