@@ -58,9 +58,10 @@ class FactorHold:
         if self.held > 0:
             self.excess += over_one  # the outcome of the last held step
             if self.held == 1:       # the first one: did holding pay at all?
-                failed = self.excess >= budget
-                self.backoff = min(max(1, 2 * self.backoff), MAX_BACKOFF) if failed else 0
-                self.wait = self.backoff
+                if self.excess >= budget:
+                    self._back_off()
+                else:
+                    self.backoff = self.wait = 0
         elif self.wait > 0:
             self.wait -= 1
             return False
@@ -76,6 +77,10 @@ class FactorHold:
     def rescued(self):
         """A held step's CG ran past its limit and the step factored its own matrix: a failed
         hold (it backs off as one), and the new factor in use."""
+        self._back_off()
+        self.published()
+
+    def _back_off(self):
+        """A failed hold: the next attempt waits 1, 2, 4, ... MAX_BACKOFF factorizations."""
         self.backoff = min(max(1, 2 * self.backoff), MAX_BACKOFF)
         self.wait = self.backoff
-        self.published()

@@ -169,6 +169,8 @@ class Solver:
                                       groups=groups, threads=self.threads,
                                       cost_scale=float(p["factor_cost_scale"]))
                        if self.precond == pcg_mod.PRECOND_FACTOR else pcg_mod.Factor(model.dof_count))
+        # on a kept factor CG may take at most a factorization's worth of iterations (step)
+        self._held_limit = min(self.cg_max_iter, max(2, int(np.ceil(self.factor.iterations_per_factor))))
         # two-level preconditioner: the coarse hand's mesh as its coarse level (two_level.py), its
         # matrix computed anew over every two_level_refresh_steps steps (whole after a long CG)
         self.coarse = None
@@ -360,8 +362,7 @@ class Solver:
         # far from this step's matrix (a jump of the tracked hand, an impact: 99 iterations once in
         # leap_roll_pitch) is replaced by the step's own, and CG goes on from where it stopped,
         # rather than spend several factorizations or hand the guard a capped step
-        limit = (min(self.cg_max_iter, max(2, int(np.ceil(self.factor.iterations_per_factor))))
-                 if held else self.cg_max_iter)
+        limit = self._held_limit if held else self.cg_max_iter
         iters, res, cap = self._pcg(state, low_rank, 0.0 if held else self.cg_energy_floor, limit)
         self._last_iters = iters
         if held and cap:
