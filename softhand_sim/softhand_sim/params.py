@@ -89,8 +89,8 @@ SIM = {
     "tissue_hessian_tolerance": P(float, 0.01, "rad", "keep a tet's tissue Hessian from the state it was last assembled "
                                   "at until its rotation turns (or its stretch R^T F changes) by more than this; the "
                                   "energy and gradient stay exact; 0 = every tet every step", 0.0, 0.5),
-    "polar_iterations": P(int, 3, "-", "iterations per step of the warm-started polar decomposition giving each tet's rotation",
-                          1, 100),
+    "polar_iterations": P(int, 1, "-", "Newton iterations per step of the warm-started polar decomposition giving "
+                          "each tet's rotation (each squares its error)", 1, 100),
     "bone_tissue_k_total": P(float, 3.2e6, "N/m", f"bone-tissue total coupling stiffness k_total of Eq. 11 ({_PAPER}: 3.2e6)",
                              positive=True),
     "joint_stiffness": P(float, 2.0e5, "N/m", f"skeletal joint stiffness of Eq. 6 ({_PAPER}: 2e5)", positive=True),

@@ -24,7 +24,8 @@ The gradient is exact when R is the exact polar rotation
 
 Units: youngs [Pa], poisson [-], Wmax and k [J/m^3], positions [m].
 Rotations are kept per tet as quaternions tet_q (T,4) [x,y,z,w], warm-started each step
-(`update_rotations`, Mueller et al. 2016), so the decomposition costs a few flops per tet.
+(`update_rotations`: Newton steps of rotations.polar_update_scalars, one by default, each squaring
+the error), so the decomposition costs a few flops per tet.
 """
 import numpy as np
 from numba import literally, njit
@@ -649,12 +650,6 @@ def _tissue_kernel(x, tets, Dm_inv, vol, lam, mu, tet_q, iterations, nl_k, nl_wm
             f[a, 0] = P00 * g0 + P01 * g1 + P02 * g2
             f[a, 1] = P10 * g0 + P11 * g1 + P12 * g2
             f[a, 2] = P20 * g0 + P21 * g1 + P22 * g2
-            h[a, 0] = R00 * g0 + R01 * g1 + R02 * g2
-            h[a, 1] = R10 * g0 + R11 * g1 + R12 * g2
-            h[a, 2] = R20 * g0 + R21 * g1 + R22 * g2
-        for a in range(4):
-            for b in range(a, 4):
-                gg[a, b] = gr[a, 0] * gr[b, 0] + gr[a, 1] * gr[b, 1] + gr[a, 2] * gr[b, 2]
         scale = 1.0
         c_over = 0.0
         if nl_k > 0.0 and W > nl_wmax:
@@ -682,6 +677,14 @@ def _tissue_kernel(x, tets, Dm_inv, vol, lam, mu, tet_q, iterations, nl_k, nl_wm
             for r in range(3):
                 for c in range(3):
                     Gu[r, c] = G[r, c]
+        # h and gg serve the Hessian only: not computed for a tet whose kept Hessian stays
+        for a in range(4):
+            g0, g1, g2 = gr[a, 0], gr[a, 1], gr[a, 2]
+            h[a, 0] = R00 * g0 + R01 * g1 + R02 * g2
+            h[a, 1] = R10 * g0 + R11 * g1 + R12 * g2
+            h[a, 2] = R20 * g0 + R21 * g1 + R22 * g2
+            for b in range(a, 4):
+                gg[a, b] = g0 * gr[b, 0] + g1 * gr[b, 1] + g2 * gr[b, 2]
         # the element's 12x12 Hessian in a local buffer, then one scatter of its 144 entries: the
         # rotation (stress) stiffness adds up to three rank-1 terms to the same entries, and the
         # scattered writes into the CSR values, not the flops, are what the kernel's time goes on
