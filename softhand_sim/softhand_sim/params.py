@@ -123,10 +123,11 @@ SIM = {
                                "scaled alike): palms pressed together stay within 1.5 mm", positive=True),
     "self_contact_kn_deep": P(float, 1.0e10, "N/m^3", "normal stiffness added to self_contact_kn (and to "
                               "self_contact_kn_hands, in proportion) where skin lies deeper than "
-                              "self_contact_deep_from inside another segment (0: the tight fist 3.01 mm deep, "
-                              "1e10: 1.36 mm; README)", 0.0),
-    "self_contact_deep_from": P(float, 0.001, "m", "depth beyond which skin-skin contact stiffens by "
-                                "self_contact_kn_deep", 0.0),
+                              "self_contact_deep_from inside another segment (0: the tight fist 3.00 mm deep, "
+                              "1e10: 1.32 mm; README)", 0.0),
+    "self_contact_deep_from": P(float, 0.0009, "m", "depth beyond which skin-skin contact stiffens by "
+                                "self_contact_kn_deep (1 mm: the tight fist 1.53 mm deep with exact tet "
+                                "rotations)", 0.0),
     "self_contact_kf": P(float, 5.0e7, "N/m^3", "friction stiffness k_f of skin-skin contact per unit vertex area (Eq. 13)",
                          positive=True),
     "self_contact_friction": P(float, 0.5, "-", "Coulomb mu of skin on skin (self contact, physics/contact/self_contact.py)",
