@@ -3,7 +3,7 @@ gradients against central differences, Hessians against differences of the gradi
 import numpy as np
 import pytest
 
-from tests.support.solver_fixtures import box_mesh, random_quat
+from tests.support.solver_fixtures import box_mesh, random_quat, svd_polar
 from softhand_sim.physics.energies import bone_tissue, joints, tissue
 from softhand_sim.physics.rotations import matrix_to_quat, quat_exp, quat_mul, quat_normalize
 
@@ -16,10 +16,7 @@ def exact_polar_quats(x, X, tets):
     for e, t in enumerate(tets):
         Ds = np.column_stack([x[t[i]] - x[t[0]] for i in (1, 2, 3)])
         Dm = np.column_stack([X[t[i]] - X[t[0]] for i in (1, 2, 3)])
-        U, s, Vt = np.linalg.svd(Ds @ np.linalg.inv(Dm))
-        if np.linalg.det(U @ Vt) < 0:  # inverted: flip the smallest singular direction
-            U[:, 2] *= -1
-        out[e] = matrix_to_quat(U @ Vt)
+        out[e] = matrix_to_quat(svd_polar(Ds @ np.linalg.inv(Dm)))
     return out
 
 

@@ -4,17 +4,9 @@ the rotation with the smallest singular direction flipped), and degenerate tets 
 import numpy as np
 import pytest
 
-from tests.support.solver_fixtures import random_quat
+from tests.support.solver_fixtures import random_quat, svd_polar
 from softhand_sim.physics.rotations import (matrix_to_quat, polar_rotation_update,
                                             polar_update_scalars, quat_exp, quat_mul, quat_to_matrix)
-
-
-def svd_polar(F):
-    """The rotation maximising tr(R^T F), independently of the iteration."""
-    U, _, Vt = np.linalg.svd(F)
-    if np.linalg.det(U @ Vt) < 0:
-        U[:, 2] *= -1
-    return U @ Vt
 
 
 def angle(q, R):

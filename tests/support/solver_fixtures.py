@@ -43,6 +43,15 @@ def random_quat(rng):
     return q / np.linalg.norm(q)
 
 
+def svd_polar(F):
+    """The rotation maximising tr(Rᵀ F) by SVD, independent of the solver's iterative update: the
+    polar rotation, for an inverted F the one with the smallest singular direction flipped."""
+    U, _, Vt = np.linalg.svd(F)
+    if np.linalg.det(U @ Vt) < 0:
+        U[:, 2] *= -1
+    return U @ Vt
+
+
 def dense_slots(stencils, n):
     """(E, k, k) slots of each stencil's k DOFs (k,) in a dense n x n matrix stored row by row: a
     kernel's Hessian scattered through them lands in np.zeros(n * n)."""
