@@ -164,11 +164,11 @@ SIM = {
     "factor_hold": P(float, 1.0, "-", "factor preconditioner: keep the factor in use, and start no new "
                      "factorization, while the CG iterations it costs beyond one a step, summed since it "
                      "came into use, stay under this fraction of a factorization's cost (counted in "
-                     "iterations from their flops; physics/factor_hold.py): a hand that holds still or "
+                     "iterations, estimated from their sizes; physics/factor_hold.py): a hand that holds still or "
                      "moves little reuses its factor for many steps; 1: until the held steps have cost "
                      "one factorization; 0: a new factorization as soon as the last is done", 0.0, 100.0),
     "factor_cost_scale": P(float, 1.0, "-", "factor preconditioner: multiplies the estimated cost of a "
-                           "factorization in CG iterations (from the flops of both and kernel speeds measured on "
+                           "factorization in CG iterations (from its flops, the size of the solves' panels and kernel speeds measured on "
                            "the project's 2-core test machine), factor_hold's unit and what sets the slice count; "
                            "`softhand bench --profile` measures the ratio on your machine and prints the value "
                            "that matches it", 0.01, 100.0),

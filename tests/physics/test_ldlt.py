@@ -1,5 +1,6 @@
 """The factor preconditioner (softhand_sim.physics.ldlt / pcg.Factor): a block LDLᵀ over the model's fixed
-pattern that solves M + dt² H to round-off, whether factored at once or in slices over steps."""
+pattern that solves M + dt² H to round-off, whether factored at once or in slices over steps (the
+solves in panels of L, float32 ones included: tests/physics/test_panels.py)."""
 import numpy as np
 import pytest
 import scipy.sparse as sp
@@ -30,17 +31,31 @@ def _matrix(m, values):
     return sp.csr_matrix((values, m.indices, m.indptr), shape=(n, n))
 
 
+def column_solve(f, r):
+    """z = A⁻¹ r with the factor's L and D in float64, column by column (ldlt.ldlt_solve)."""
+    z = np.zeros_like(r)
+    ldlt.ldlt_solve(f.sym.Lp, f.sym.Li, f.L, f.D_inv, f.sym.perm, np.zeros_like(r), r, z)
+    return z
+
+
+def assert_solves(f, m, values, r):
+    """The factor is A's to round-off: its L and D column by column and the preconditioner's
+    solve in panels (float64: a small model's) against scipy's direct solve, 1e-9."""
+    assert f.panels.dtype == np.float64
+    ref = spsolve(_matrix(m, values).tocsc(), r)
+    z = np.zeros_like(r)
+    f.solve(r, z)
+    for got in (column_solve(f, r), z):
+        assert np.linalg.norm(got - ref) <= 1e-9 * np.linalg.norm(ref)
+
+
 def test_factor_solves_the_system_to_roundoff(system):
     """LDLᵀ solve of M + dt² H against scipy's direct solve (independent reference): rel. error < 1e-9."""
     m, values = system
     f = pcg.Factor(m.dof_count, m.indptr, m.indices)
     f.refresh(m.indptr, m.indices, values)
     assert f.bad_pivots == 0
-    r = np.random.default_rng(2).normal(size=m.dof_count)
-    z = np.zeros_like(r)
-    ldlt.ldlt_solve(*f.arrays[:6], r, z)
-    ref = spsolve(_matrix(m, values).tocsc(), r)
-    assert np.linalg.norm(z - ref) <= 1e-9 * np.linalg.norm(ref)
+    assert_solves(f, m, values, np.random.default_rng(2).normal(size=m.dof_count))
 
 
 def test_sliced_factorization_equals_the_full_one(system):
@@ -52,27 +67,30 @@ def test_sliced_factorization_equals_the_full_one(system):
     sliced = pcg.Factor(m.dof_count, m.indptr, m.indices, slice_flops=1.0, max_slices=7)
     sliced.refresh(m.indptr, m.indices, 2.0 * values)  # a factor in use (of another matrix)
     assert sliced.slices == 7
-    published = [sliced.advance(values if k == 0 else 3.0 * values) for k in range(7)]
+    in_use = sliced.D_inv.copy()  # of 2 A: L as A's, D twice A's
+    published = [sliced.advance(values if k == 0 else 3.0 * values) for k in range(6)]
+    np.testing.assert_array_equal(sliced.D_inv, in_use)  # the solves' factor unchanged until the last slice
+    published.append(sliced.advance(3.0 * values))
     assert published == [False] * 6 + [True]
-    for a, b in zip(full.arrays[:7], sliced.arrays[:7]):
+    for a, b in ((full.L, sliced.L), (full.D_inv, sliced.D_inv), (full.arrays[4], sliced.arrays[4])):
         np.testing.assert_allclose(a, b, rtol=1e-12, atol=0.0)
 
 
 def test_one_slice_factor_is_refreshed_in_place_from_the_values(system):
     """A factorization done within one step (one slice: the coarse hand's) reads the values it is
-    given, with no snapshot, into the one buffer the solves use: every advance publishes the factor
-    of exactly those values, in the same arrays."""
+    given, with no snapshot: every advance publishes the factor of exactly those values, in the same
+    arrays (L, the panels, D⁻¹)."""
     m, values = system
     f = pcg.Factor(m.dof_count, m.indptr, m.indices)
-    assert f.slices == 1
+    assert f.slices == 1 and f._snap is None
     f.refresh(m.indptr, m.indices, 2.0 * values)
-    Lx = f.arrays[2]
+    arrays = f.L, f.arrays[4], f.arrays[5]
     for scale in (1.0, 3.0):
         assert f.advance(scale * values)
         fresh = pcg.Factor(m.dof_count, m.indptr, m.indices)
         fresh.refresh(m.indptr, m.indices, scale * values)
-        assert f.arrays[2] is Lx
-        for a, b in zip(fresh.arrays[:5], f.arrays[:5]):
+        assert all(a is b for a, b in zip(arrays, (f.L, f.arrays[4], f.arrays[5])))
+        for a, b in zip((fresh.L,) + fresh.arrays[:7], (f.L,) + f.arrays[:7]):
             np.testing.assert_array_equal(a, b)
 
 
@@ -173,12 +191,9 @@ def test_factor_of_object_rows_with_and_without_contact():
             coupled[slot] += v
     f = pcg.Factor(m.dof_count, m.indptr, m.indices)
     r = np.random.default_rng(5).normal(size=m.dof_count)
-    for values in (free, coupled, free, free):  # the factor's two buffers take turns: the last reuses the coupled one
+    for values in (free, coupled, free):  # the buffers (L, the panels) reused after the coupled factor
         f.refresh(m.indptr, m.indices, values)
-        z = np.zeros_like(r)
-        ldlt.ldlt_solve(*f.arrays[:6], r, z)
-        ref = spsolve(_matrix(m, values).tocsc(), r)
-        assert np.linalg.norm(z - ref) <= 1e-9 * np.linalg.norm(ref)
+        assert_solves(f, m, values, r)
     assert f.bad_pivots == 0
 
 
@@ -204,6 +219,6 @@ def test_a_cg_far_over_the_refresh_iterations_refactors_at_once(system, last_ite
         assert stats.refactored and s.factor._next == 0
         fresh = pcg.Factor(m.dof_count, m.indptr, m.indices, slice_flops=1.0, max_slices=5)
         fresh.refresh(m.indptr, m.indices, s.values)
-        np.testing.assert_array_equal(fresh.arrays[2], s.factor.arrays[2])
+        np.testing.assert_array_equal(fresh.L, s.factor.L)
     else:
         assert not stats.refactored and s.factor._next == 3

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from softhand_sim.commands import bench
-from softhand_sim.physics import ldlt, parallel, pcg
+from softhand_sim.physics import panels, parallel, pcg
 from softhand_sim.physics.model import build_model
 from softhand_sim.physics.solver import Solver
 
@@ -44,7 +44,7 @@ def test_two_threads_step_as_one_thread_does(grips):
     (s1, x1, it1), (s2, x2, it2) = grips
     assert it2 == it1
     f = s2.factor
-    assert s1.factor.arrays[6].size == 0 and f.by_group and f.shared_rows < f.sym.nb
+    assert s1.factor.arrays[9].size == 0 and f.by_group and f.shared_rows < f.sym.nb
     assert s2.last_stats.contacts > 100
     assert np.abs(x2.node_x - x1.node_x).max() <= 1e-9
     assert np.abs(x2.body_x - x1.body_x).max() <= 1e-9
@@ -66,24 +66,27 @@ def test_factor_by_group_is_the_one_thread_factor_in_any_slicing(grips):
         for _ in range(slices):
             two.advance(values)
         assert two.valid
-        np.testing.assert_array_equal(two.arrays[2], one.arrays[2])  # L
-        np.testing.assert_array_equal(two.arrays[3], one.arrays[3])  # D^-1
+        np.testing.assert_array_equal(two.L, one.L)
+        np.testing.assert_array_equal(two.D_inv, one.D_inv)
+        np.testing.assert_array_equal(two.arrays[4], one.arrays[4])  # the panels
 
 
 def test_solve_by_group_matches_the_serial_solve_through_the_shared_rows(grips):
-    """z = A^-1 r by groups equals the one-thread solve to round-off, for a right-hand side on
-    every row; the box's rows (shared) receive from both hands' columns."""
+    """z = A^-1 r by groups (each hand's panels on a core, the box's rows after them) equals the
+    one-thread panel solve to round-off, for a right-hand side on every row; the box's rows
+    (shared) receive from both hands' panels."""
     _, (solver, _, _) = grips
     f = solver.factor
-    Lp = f.sym.Lp
-    gb, split, w = f.arrays[6:]
-    into_shared = sum(int(Lp[i + 1] - split[i]) for i in range(f.shared_rows))
-    assert into_shared > 0
+    starts, rptr, rows, off, values, Dinv, perm, tmp, u, sb, acc, ug = f.arrays
+    shared = starts[sb[-2]]
+    assert len(sb) == 4 and shared == f.shared_rows  # two hands' supernodes, then the box's
+    for h in range(2):  # each hand's panels reach the box's rows
+        assert (rows[rptr[sb[h]]:rptr[sb[h + 1]]] >= shared).any()
     rng = np.random.default_rng(3)
     r = rng.standard_normal(solver.model.dof_count)
-    z1, z2 = np.zeros_like(r), np.zeros_like(r)
-    ldlt.ldlt_solve(*f.arrays[:6], r, z1)
-    parallel.ldlt_solve_by_group(*f.arrays[:6], r, z2, gb, split, w)
+    z1, z2 = np.zeros_like(r), np.full_like(r, np.nan)
+    panels.panel_solve(starts, rptr, rows, off, values, Dinv, perm, tmp, u, r, z1)
+    parallel.panel_solve_by_group(starts, rptr, rows, off, values, Dinv, perm, tmp, r, z2, sb, acc, ug)
     assert np.abs(z2 - z1).max() <= 1e-12 * np.abs(z1).max()
 
 

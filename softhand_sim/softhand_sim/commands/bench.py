@@ -383,7 +383,7 @@ def run(scenario, mesh, steps, preconditioner, hands=1, profile=False, threads=1
         "hands": hands, "threads": threads, "mesh": mesh, "source": source, "tets": int(len(model.tets)),
         "dofs": int(model.dof_count),
         "nnz": int(len(model.indices)), "scenario": scenario, "preconditioner": preconditioner,
-        "steps": steps, "median_ms": float(np.median(ms)), "p99_ms": float(np.percentile(ms, 99)),
+        "steps": steps, "median_ms": float(np.median(ms)), "mean_ms": float(ms.mean()), "p99_ms": float(np.percentile(ms, 99)),
         "max_ms": float(ms.max()), "steps_per_s": float(1e3 / np.median(ms)),
         "setup_ms": float(np.median(setup)), "solve_ms": float(np.median(solve)),
         "cg_iters_median": float(np.median(iters)), "cg_iters_max": int(max(iters)),

@@ -133,6 +133,36 @@ def grouped_order(indptr, indices, n, groups):
     return np.concatenate(parts).astype(np.int32)
 
 
+def postorder(parent, ranges):
+    """Positions (new -> old) that put the elimination tree (parent: (nb,), -1 at a root) in
+    postorder within each range ranges[g]:ranges[g+1] (a node whose parent is past its range is a
+    root there): children before their parent, every subtree consecutive, so a chain of single
+    children takes consecutive columns. Children are visited in their old order."""
+    nb = len(parent)
+    order = []
+    for lo, hi in zip(ranges[:-1], ranges[1:]):
+        lo, hi = int(lo), int(hi)
+        children = [[] for _ in range(hi - lo)]
+        roots = []
+        for j in range(lo, hi):
+            p = int(parent[j])
+            (roots if p < 0 or p >= hi else children[p - lo]).append(j)
+        for root in roots:
+            stack = [(root, 0)]
+            while stack:
+                node, k = stack.pop()
+                kids = children[node - lo]
+                if k < len(kids):
+                    stack.append((node, k + 1))
+                    stack.append((kids[k], 0))
+                else:
+                    order.append(node)
+    if len(order) != nb:
+        raise ValueError(f"postorder: {len(order)} of {nb} nodes reached (parent is not a forest "
+                         f"within the ranges {list(ranges)})")
+    return np.asarray(order, np.int64)
+
+
 def block_pattern(indptr, indices, n, bs=3):
     """CSR pattern of the bs x bs blocks of an n x n CSR pattern (n divisible by bs) and
     blk_slots (nnzB, bs, bs) int32: the value index of each scalar entry of each block (-1: absent)."""
@@ -322,17 +352,26 @@ class Symbolic:
         bindptr, bindices, self.blk_slots = block_pattern(indptr, indices, n)
         self.n = n
         self.nb = nb = n // 3
-        if perm is not None:
-            self.perm = np.asarray(perm, np.int32)
-        elif groups is not None:
-            self.perm = grouped_order(bindptr, bindices, nb, groups)
-        else:
-            self.perm = fill_reducing_order(bindptr, bindices, nb)
-        self.pinv = np.empty(nb, np.int32)
-        self.pinv[self.perm] = np.arange(nb, dtype=np.int32)
+        # the block-row ranges factored apart (each group's, then the rest): no supernode of the
+        # panels spans two (panels.py), and the postorder below stays inside each
+        sizes = [len(g) for g in groups] if groups is not None and perm is None else []
+        self.ranges = np.unique(np.r_[0, np.cumsum(sizes, dtype=np.int64), nb]).astype(np.int64)
         parent = np.empty(nb, np.int32)
         lnz = np.empty(nb, np.int32)
         flag = np.empty(nb, np.int32)
+        if perm is not None:
+            self.perm = np.asarray(perm, np.int32)
+        else:
+            self.perm = (grouped_order(bindptr, bindices, nb, groups) if groups is not None
+                         else fill_reducing_order(bindptr, bindices, nb))
+            # the same fill in an order whose elimination-tree chains are consecutive columns:
+            # the panels' supernodes (any topological order of the tree factors alike)
+            self.pinv = np.empty(nb, np.int32)
+            self.pinv[self.perm] = np.arange(nb, dtype=np.int32)
+            _symbolic_counts(nb, bindptr, bindices, self.perm, self.pinv, parent, lnz, flag)
+            self.perm = self.perm[postorder(parent, self.ranges)]
+        self.pinv = np.empty(nb, np.int32)
+        self.pinv[self.perm] = np.arange(nb, dtype=np.int32)
         _symbolic_counts(nb, bindptr, bindices, self.perm, self.pinv, parent, lnz, flag)
         self.Lp = np.zeros(nb + 1, np.int32)
         np.cumsum(lnz, out=self.Lp[1:])

@@ -7,8 +7,8 @@ falls apart by hand (docs/ARCHITECTURE.md, "Two hands on two cores"):
   * the factorization: the factor's ordering (ldlt.grouped_order) puts each hand's blocks apart
     and the shared rows (the objects) last, so L is block-diagonal per hand plus the last rows
     and a hand's rows read only that hand's rows;
-  * the triangular solves of the preconditioner, by the same structure; and the matrix-vector
-    product, by rows.
+  * the triangular solves of the preconditioner, by the same structure (the panels of a hand's
+    rows, panels.py); and the matrix-vector product, by rows.
 Each function here runs the one-thread kernel on each hand's part in a `prange` over the hands
 (or row chunks). Every matrix entry, factor entry and product row is computed by the same
 arithmetic in the same order as one thread does, so results are identical but for the shared
@@ -22,8 +22,8 @@ import numpy as np
 from numba import njit, prange
 
 from softhand_sim.physics.energies import tissue
-from softhand_sim.physics.ldlt import (backward_column, forward_column, gather_rows, ldlt_numeric_rows,
-                                       scale_by_dinv, scatter_rows)
+from softhand_sim.physics.ldlt import gather_rows, ldlt_numeric_rows, scatter_rows
+from softhand_sim.physics.panels import panel_backward, panel_forward, panel_solve
 
 
 @njit(parallel=True, cache=True)
@@ -58,47 +58,41 @@ def factor_rows_by_group(lo, hi, values, blk_slots, up_ptr, up_row, up_slot, row
 
 
 @njit(parallel=True, cache=True)
-def ldlt_solve_by_group(Lp, Li, Lx, Dinv, perm, tmp, r, z, gb, split, w):
-    """ldlt.ldlt_solve with the groups' block rows gb[h]:gb[h+1] in parallel and the shared rows
-    gb[-1]:nb after them. split[i]: the first entry of column i in a shared row (a column's rows
-    ascend); w (3 nb,) scratch keeps the groups' w_i for the shared rows' updates, which run on
-    one thread (groups would write the same shared rows)."""
+def panel_solve_by_group(starts, rptr, rows, off, values, Dinv, perm, tmp, r, z, sb, acc, ug):
+    """panels.panel_solve with each group's supernodes sb[h]:sb[h+1] in parallel and the shared
+    ones sb[-2]:sb[-1] (the objects' rows) on one thread between the passes. A group's panels
+    reach the shared rows too: each group adds those into its own acc[h] (3 (nb - first shared
+    row),), summed into the shared rows before their forward pass (the sum's order differs from
+    one thread's: round-off). ug: (groups, longest) scratch, one per core."""
     nb = perm.shape[0]
-    groups = gb.shape[0] - 1
-    shared = gb[groups]
+    groups = sb.shape[0] - 2
+    shared = starts[sb[groups]]
     for h in prange(groups):
-        gather_rows(gb[h], gb[h + 1], perm, r, tmp)
-        for i in range(gb[h], gb[h + 1]):
-            forward_column(i, Lp[i], split[i], Li, Lx, tmp, tmp)
-            if split[i] < Lp[i + 1]:
-                w[3 * i], w[3 * i + 1], w[3 * i + 2] = tmp[3 * i], tmp[3 * i + 1], tmp[3 * i + 2]
-            scale_by_dinv(i, Dinv, tmp)
-    if shared < nb:
-        gather_rows(shared, nb, perm, r, tmp)
-        for i in range(shared):  # the groups' columns into the shared rows
-            if split[i] < Lp[i + 1]:
-                forward_column(i, split[i], Lp[i + 1], Li, Lx, w, tmp)
-        for i in range(shared, nb):
-            forward_column(i, Lp[i], Lp[i + 1], Li, Lx, tmp, tmp)
-            scale_by_dinv(i, Dinv, tmp)
-        for i in range(nb - 1, shared - 1, -1):
-            backward_column(i, Lp, Li, Lx, tmp)
-        scatter_rows(shared, nb, perm, tmp, z)
+        gather_rows(starts[sb[h]], starts[sb[h + 1]], perm, r, tmp)
+        acc[h, :] = 0.0
+        panel_forward(sb[h], sb[h + 1], starts, rptr, rows, off, values, Dinv, tmp, ug[h], shared, acc[h])
+    gather_rows(shared, nb, perm, r, tmp)
+    for h in range(groups):
+        for i in range(acc.shape[1]):
+            tmp[3 * shared + i] += acc[h, i]
+    panel_forward(sb[groups], sb[groups + 1], starts, rptr, rows, off, values, Dinv, tmp, ug[0], nb,
+                  acc[0])
+    panel_backward(sb[groups], sb[groups + 1], starts, rptr, rows, off, values, tmp, ug[0])
+    scatter_rows(shared, nb, perm, tmp, z)
     for h in prange(groups):
-        for i in range(gb[h + 1] - 1, gb[h] - 1, -1):
-            backward_column(i, Lp, Li, Lx, tmp)
-        scatter_rows(gb[h], gb[h + 1], perm, tmp, z)
+        panel_backward(sb[h], sb[h + 1], starts, rptr, rows, off, values, tmp, ug[h])
+        scatter_rows(starts[sb[h]], starts[sb[h + 1]], perm, tmp, z)
 
 
-def shared_split(Lp, Li, first_shared):
-    """split (nb,) int32 for ldlt_solve_by_group: the index of column i's first entry in a row >=
-    first_shared (Lp[i + 1] when it has none)."""
-    nb = len(Lp) - 1
-    split = np.empty(nb, np.int32)
-    for i in range(nb):
-        col = Li[Lp[i]:Lp[i + 1]]
-        split[i] = Lp[i] + int(np.searchsorted(col, first_shared))
-    return split
+@njit(cache=True)
+def factor_solve(fac, r, z):
+    """z = A⁻¹ r with the factor in use (pcg.Factor.arrays): its groups on the cores when it has
+    them (sb, the groups' supernode bounds, not empty), else on one thread."""
+    starts, rptr, rows, off, values, Dinv, perm, tmp, u, sb, acc, ug = fac
+    if sb.shape[0] > 0:
+        panel_solve_by_group(starts, rptr, rows, off, values, Dinv, perm, tmp, r, z, sb, acc, ug)
+    else:
+        panel_solve(starts, rptr, rows, off, values, Dinv, perm, tmp, u, r, z)
 
 
 def row_chunks(indptr, count):

@@ -13,14 +13,15 @@ Preconditioners:
 import numpy as np
 from numba import njit, prange
 
-from softhand_sim.physics.ldlt import ldlt_solve
-from softhand_sim.physics.parallel import factor_rows_by_group, ldlt_solve_by_group, shared_split
+from softhand_sim.physics.panels import Panels, to_panels
+from softhand_sim.physics.parallel import factor_rows_by_group, factor_solve
 from softhand_sim.physics.two_level import v_cycle, v_cycle_by_hand
 
 PRECOND_JACOBI = 0
 PRECOND_BLOCK_JACOBI = 1
 PRECOND_FACTOR = 2
 PRECOND_TWO_LEVEL = 3
+SLICES_PER_ITERATION = 0.095  # a factorization's slices per CG iteration it costs (Factor.analyse)
 
 
 class Factor:
@@ -46,11 +47,13 @@ class Factor:
         self.n = n
         self.valid = False
         self.sym = None
-        e_i, e_f = np.zeros(1, np.int32), np.zeros((1, 3, 3))
         nb = n // 3
-        self._serial = (np.zeros(0, np.int64), np.zeros(0, np.int32), np.zeros(0))
-        self.arrays = (np.zeros(nb + 1, np.int32), e_i, e_f, np.tile(np.eye(3), (nb, 1, 1)),
-                       np.arange(nb, dtype=np.int32), np.zeros(n)) + self._serial
+        # no factor yet: arrays of the types factor_solve takes (pcg compiles once for them)
+        self._serial = (np.zeros(0, np.int64), np.zeros((1, 0)), np.zeros((1, 0)))
+        i0 = np.zeros(1, np.int64)
+        self.arrays = (i0, i0, np.zeros(0, np.int64), i0, np.zeros(0),
+                       np.tile(np.eye(3), (nb, 1, 1)), np.arange(nb, dtype=np.int32), np.zeros(n),
+                       np.zeros(0)) + self._serial
         self.slice_flops, self.max_slices = slice_flops, max_slices
         self.iterations_per_factor = 0.0  # a factorization's cost in CG iterations (analyse)
         self.cost_scale = float(cost_scale)  # ... times the estimate (factor_cost_scale)
@@ -69,23 +72,26 @@ class Factor:
         self.indptr, self.indices = indptr, indices
         self.sym = sym = Symbolic(indptr, indices, self.n, groups=self.groups)
         self.nnz = sym.nnz_L
-        # the factor F and one CG iteration c (LDLᵀ solve + matvec) estimated from their flops
-        # and the speeds these kernels run at (the factor 11.6 GFlop/s after ~50 µs of its own,
-        # the solves 9 GFlop/s, the matvec 4): F / c is what a factorization costs in iterations,
-        # the factor_hold rule's unit (factor_hold.py) and the slices' count below. Fitted to
-        # `softhand bench --profile`'s factor_cost on this machine: the factor 0.27 / 15.9 ms, an
-        # iteration 0.039 / 0.42 ms (coarse / fine hand). Until those were measured the estimate
-        # assumed 4, 7 and 2 GFlop/s: 9.6 / 74 iterations against 6.8 / 38 measured, and the fine
-        # hand's factor came in 12 slices instead of 6 (docs/MEASUREMENTS.md, "The factor's cost
-        # measured")
+        self.panels = pn = Panels(sym.Lp, sym.Li, sym.ranges)  # L as the solves read it (panels.py)
+        # the factor F and one CG iteration c (the panels' solve + the matvec) estimated from
+        # their sizes and the speeds these kernels run at (the factor 11.6 GFlop/s after ~50 µs of
+        # its own; the solves stream 12 panel values per ns plus ~37 ns per panel; the
+        # matvec 4 GFlop/s): F / c is what a factorization costs in iterations, the factor_hold
+        # rule's unit (factor_hold.py) and the slices' count below. Fitted to `softhand bench
+        # --profile`'s factor_cost on this machine (one and two hands, coarse and fine, free,
+        # press and grasp: the estimate 0.88-1.10 times the measured ratio): a factorization 9
+        # iterations of the coarse hand, 58-66 of the fine one (docs/MEASUREMENTS.md, "The
+        # factor's cost measured", "Triangular solves in panels")
         t_factor = 5e-5 + sym.flops / 11.6e9
-        t_iter = 36.0 * sym.nnz_L / 9e9 + 2.0 * len(indices) / 4e9
+        t_iter = 0.081e-9 * pn.size + 37e-9 * pn.count + 2.0 * len(indices) / 4e9
         # (on a machine whose kernels run at other speeds, factor_cost_scale corrects it)
         self.iterations_per_factor = self.cost_scale * t_factor / t_iter
         if self.slice_flops is None:
-            # K minimizing F/K + c it(K) with it(K) ~ 1 + 4 log2 K (measured on the hands: 1, 5,
-            # 7, 9, 14 iterations for K = 1, 2, 4, 8, 16): K = F ln2 / (4 c)
-            want = int(0.17 * self.iterations_per_factor)  # rounded down: K = 2 costs 4 more iterations
+            # K slices: a factor at most 2K steps old and CG's iterations on it growing with K,
+            # against F/K a step. Measured on the fine hand (free, press, grasp; K = 4, 5, 6, 8,
+            # 11): K = 6 the least mean step (free: 5.8 ms against 6.2-7.6), and the rule puts
+            # the fine hand there and the coarse one at K = 1 (9 iterations: 0.86)
+            want = int(SLICES_PER_ITERATION * self.iterations_per_factor)  # rounded down
         else:
             want = int(np.ceil(sym.flops / self.slice_flops))
         self.slices = int(np.clip(want, 1, self.max_slices))
@@ -99,28 +105,31 @@ class Factor:
                                                      keep_empty=True)
                                           for h in range(len(gb) - 1)], axis=1)
             self.shared_rows = int(gb[-1])
-            self._by_group = (gb, shared_split(sym.Lp, sym.Li, self.shared_rows), np.zeros(self.n))
-        # a factorization spread over steps works on a snapshot of the values into the buffer the
-        # solves do not use; one done within a step (one slice) needs neither: it reads the
-        # values and writes the only buffer before the step's solve. Half the memory and no
-        # copy of the values per step, which counts in the cache (two coarse hands: 1.4 MB of L
-        # and 0.6 MB of values against a 2 MB second-level cache per core)
-        two = self.slices > 1
-        self._buf = [(np.zeros((sym.nnz_L, 3, 3)), np.tile(np.eye(3), (sym.nb, 1, 1)))
-                     for _ in range(2 if two else 1)]
-        self._snap = np.zeros(len(indices)) if two else None
+            # the solves: each group's supernodes, then the shared rows' (panels never span two)
+            sb = np.array([pn.supernode_at(int(b)) for b in gb] + [pn.count], np.int64)
+            groups = len(gb) - 1
+            self._by_group = (sb, np.zeros((groups, 3 * (sym.nb - self.shared_rows))),
+                              np.zeros((groups, pn.longest)))
+        # the factorization writes L and D into its own buffers (over several steps when it is
+        # sliced, from a snapshot of the values); the solves read the factor published last: L
+        # copied into the panels and D⁻¹ into their own array. One factored within a step (one
+        # slice: the coarse hand's) reads the values themselves, no snapshot
+        self._L = np.zeros((sym.nnz_L, 3, 3))
+        self._D = np.tile(np.eye(3), (sym.nb, 1, 1))
+        self._snap = np.zeros(len(indices)) if self.slices > 1 else None
+        self._panel_values = np.zeros(pn.size, pn.dtype)
+        self._panel_dinv = np.tile(np.eye(3), (sym.nb, 1, 1))
         self._y = np.zeros((sym.nb, 3, 3))
         self._tmp = np.zeros(self.n)
+        self._u = np.zeros(pn.longest)
         self._next = 0          # next slice of the factorization in progress (0: none started)
-        self._active = 0        # buffer in use by the solves
         self.bad_pivots = 0
 
     def _run_slice(self, s, values):
         from softhand_sim.physics.ldlt import ldlt_numeric_rows
         sym = self.sym
-        Lx, Dinv = self._buf[0] if len(self._buf) == 1 else self._buf[1 - self._active]
         rows = (values, sym.blk_slots, sym.up_ptr, sym.up_row, sym.up_slot, sym.row_ptr, sym.row_col,
-                sym.row_slot, sym.Lp, sym.Li, Lx, Dinv, self._y)
+                sym.row_slot, sym.Lp, sym.Li, self._L, self._D, self._y)
         if not self.by_group:
             self.bad_pivots += ldlt_numeric_rows(int(self.bounds[s]), int(self.bounds[s + 1]), *rows)
             return
@@ -137,13 +146,28 @@ class Factor:
         return self._snap
 
     def _publish(self):
-        if len(self._buf) == 2:
-            self._active = 1 - self._active
-        Lx, Dinv = self._buf[self._active]
-        sym = self.sym
-        self.arrays = (sym.Lp, sym.Li, Lx, Dinv, sym.perm, self._tmp) + (
-            self._by_group if self.by_group else self._serial)
+        pn = self.panels
+        to_panels(self._L, pn.dst, pn.col_len, self._panel_values)
+        self._panel_dinv[:] = self._D
+        self.arrays = (pn.starts, pn.rptr, pn.rows, pn.off, self._panel_values, self._panel_dinv,
+                       self.sym.perm, self._tmp, self._u) + (self._by_group if self.by_group
+                                                             else self._serial)
         self.valid = True
+
+    @property
+    def L(self):
+        """L's blocks by columns ((nnzL, 3, 3), float64) as the factorization wrote them: the
+        factor in use while no sliced factorization is under way."""
+        return self._L
+
+    @property
+    def D_inv(self):
+        """D⁻¹ of the factor in use ((nb, 3, 3))."""
+        return self._panel_dinv
+
+    def solve(self, r, z):
+        """z = A⁻¹ r with the factor in use (what the preconditioner applies)."""
+        factor_solve(self.arrays, r, z)
 
     @property
     def in_progress(self):
@@ -283,19 +307,14 @@ def build_block_jacobi(values, node_slots, body_slots, node_inv, body_inv):
 def _apply_precond(kind, r, z, diag_inv, node_inv, body_inv, body_dof0, fac, indptr, indices, values,
                    diag_slot, tl):
     if kind == PRECOND_TWO_LEVEL:
-        if tl[11].shape[0] > 1:  # the hands' sweeps on the cores (CoarseLevel threads)
+        if tl[6].shape[0] > 1:  # the hands' sweeps on the cores (CoarseLevel threads)
             v_cycle_by_hand(indptr, indices, values, diag_slot, r, z, tl[0], tl[1], tl[2], tl[3], tl[4],
-                            tl[5], tl[6], tl[7], tl[8], tl[9], tl[10], tl[11], tl[12], tl[13], tl[14])
+                            tl[5], tl[6])
         else:
-            v_cycle(indptr, indices, values, diag_slot, r, z, tl[0], tl[1], tl[2], tl[3], tl[4], tl[5], tl[6],
-                    tl[7], tl[8], tl[9], tl[10])
+            v_cycle(indptr, indices, values, diag_slot, r, z, tl[0], tl[1], tl[2], tl[3], tl[4], tl[5])
         return
     if kind == PRECOND_FACTOR:
-        if fac[6].shape[0] > 1:  # the hands' rows on the cores (Factor.threads)
-            ldlt_solve_by_group(fac[0], fac[1], fac[2], fac[3], fac[4], fac[5], r, z,
-                                fac[6], fac[7], fac[8])
-        else:
-            ldlt_solve(fac[0], fac[1], fac[2], fac[3], fac[4], fac[5], r, z)
+        factor_solve(fac, r, z)  # the hands' panels on the cores with Factor.threads
         return
     if kind == PRECOND_JACOBI:
         for i in range(r.shape[0]):
@@ -318,10 +337,8 @@ def _apply_precond(kind, r, z, diag_inv, node_inv, body_inv, body_dof0, fac, ind
 ONE_CHUNK = np.zeros(2, np.int64)  # row_chunks of a product on one thread
 NO_LOW_RANK = (0, np.zeros((0, 8), np.int32), np.zeros((0, 8)), np.zeros((0, 3, 3)))
 # two_level.CoarseLevel.arrays' types, empty: what the other preconditioners pass
-NO_TWO_LEVEL = (np.zeros((0, 4), np.int32), np.zeros((0, 4)), np.zeros(1, np.int32), np.zeros(0, np.int32),
-                np.zeros((0, 3, 3)), np.zeros((0, 3, 3)), np.zeros(0, np.int32), np.zeros(0), np.zeros(0),
-                np.zeros(0), np.zeros(0), np.zeros((1, 4), np.int64), np.zeros(0, np.int64),
-                np.zeros(0, np.int32), np.zeros(0))
+NO_TWO_LEVEL = (np.zeros((0, 4), np.int32), np.zeros((0, 4)), Factor(0).arrays, np.zeros(0), np.zeros(0),
+                np.zeros(0), np.zeros((1, 4), np.int64))
 
 
 def pcg(indptr, indices, values, b, x, tol, max_iter, kind, diag_slot, node_slots, body_slots,

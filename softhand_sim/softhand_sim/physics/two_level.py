@@ -31,8 +31,8 @@ iterations a step with K = 6 or 12, 13 with 24 or 48).
 import numpy as np
 from numba import njit, prange
 
-from softhand_sim.physics.ldlt import block_pattern, ldlt_solve
-from softhand_sim.physics.parallel import ldlt_solve_by_group
+from softhand_sim.physics.ldlt import block_pattern
+from softhand_sim.physics.parallel import factor_solve
 
 WEIGHT_FLOOR = 1e-9  # interpolation weights below it are round-off: none (CoarseLevel)
 _U = np.uint64  # unsigned indices: numba tests a signed one for wrap-around at every gather
@@ -179,31 +179,29 @@ def _prolong(zc, pc, pw, z, I0, I1):
 
 
 @njit(cache=True)
-def v_cycle(indptr, indices, values, diag_slot, r, z, pc, pw, cLp, cLi, cLx, cDinv, cperm, ctmp, t, rc,
-            zc):
+def v_cycle(indptr, indices, values, diag_slot, r, z, pc, pw, fac, t, rc, zc):
     """z <- the two-level preconditioner applied to r (see the module docstring). pc, pw: P by
-    blocks (CoarseLevel); cLp..ctmp: the coarse factor (ldlt.ldlt_solve's arrays); t: (n,) and
+    blocks (CoarseLevel); fac: the coarse factor (pcg.Factor.arrays, one thread); t: (n,) and
     rc, zc: (nc,) scratch. CoarseLevel.arrays holds pc..zc in this order."""
     n = r.shape[0]
     _forward_rows(indptr, indices, values, diag_slot, r, z, 0, n)
     _upper_rows(indptr, indices, values, diag_slot, z, t, 0, n)
     rc[:] = 0.0
     _restrict(t, pc, pw, rc, 0, pc.shape[0])
-    ldlt_solve(cLp, cLi, cLx, cDinv, cperm, ctmp, rc, zc)
+    factor_solve(fac, rc, zc)
     _prolong(zc, pc, pw, z, 0, pc.shape[0])
     _backward_rows(indptr, indices, values, diag_slot, r, z, 0, n)
 
 
 @njit(parallel=True, cache=True)
-def v_cycle_by_hand(indptr, indices, values, diag_slot, r, z, pc, pw, cLp, cLi, cLx, cDinv, cperm, ctmp,
-                    t, rc, zc, rows, cgb, csplit, cw):
+def v_cycle_by_hand(indptr, indices, values, diag_slot, r, z, pc, pw, fac, t, rc, zc, rows):
     """v_cycle with each hand's part on a core of its own: rows[h] = (first node DOF, end, first
     bone DOF, end) of hand h, the objects' rows from the last hand's bones on (one thread). The
     same result as v_cycle: no matrix entry couples two hands (model.py); a hand's rows see the
     objects' only above the diagonal, which the forward sweep from zero leaves out and the
     backward one reads after the objects' rows are done; a hand's fine blocks restrict to and
     prolong from its own coarse blocks (and the objects'). The coarse factor is grouped by hand
-    (cgb, csplit, cw: ldlt_solve_by_group's; Factor with groups and threads)."""
+    (fac: a Factor with groups and threads: its panels solve by hand too)."""
     n = r.shape[0]
     H = rows.shape[0]
     shared = rows[H - 1, 3]
@@ -219,7 +217,7 @@ def v_cycle_by_hand(indptr, indices, values, diag_slot, r, z, pc, pw, cLp, cLi, 
         _restrict(t, pc, pw, rc, rows[h, 2] // 3, rows[h, 3] // 3)
     _upper_rows(indptr, indices, values, diag_slot, z, t, shared, n)
     _restrict(t, pc, pw, rc, shared // 3, n // 3)
-    ldlt_solve_by_group(cLp, cLi, cLx, cDinv, cperm, ctmp, rc, zc, cgb, csplit, cw)
+    factor_solve(fac, rc, zc)
     for h in prange(H):  # every row corrected before the objects' rows start the backward sweep
         _prolong(zc, pc, pw, z, rows[h, 0] // 3, rows[h, 1] // 3)
         _prolong(zc, pc, pw, z, rows[h, 2] // 3, rows[h, 3] // 3)
@@ -419,11 +417,11 @@ class CoarseLevel:
 
     @property
     def arrays(self):
-        """The tuple pcg passes to v_cycle_by_hand (after the fine matrix): P, the coarse factor,
-        scratch, the hands' rows and the coarse factor's groups (v_cycle takes the first 11, one
-        thread: rows has one row)."""
+        """The tuple pcg passes to v_cycle_by_hand (after the fine matrix): P, the coarse factor's
+        arrays, scratch and the hands' rows (v_cycle takes the first 6, one thread: rows has one
+        row)."""
         t, rc, zc = self.scratch
-        return (self.pc, self.pw) + self.factor.arrays[:6] + (t, rc, zc, self.rows) + self.factor.arrays[6:]
+        return (self.pc, self.pw, self.factor.arrays, t, rc, zc, self.rows)
 
     def prolongation(self):
         """P as a scipy CSR matrix (fine DOFs x coarse DOFs), for checks."""
