@@ -4,9 +4,10 @@ iteration cap). All compiled; scratch arrays are owned by the caller and reused 
 Preconditioners:
   PRECOND_JACOBI        the paper's: inverse diagonal
   PRECOND_BLOCK_JACOBI  inverse 3x3 node blocks and 6x6 rigid-body blocks
-  PRECOND_FACTOR        a sparse LDLᵀ of a recent M + dt^2 H (default; ldlt.py), refreshed in equal
-                        slices every step: the stiff bone-tissue and joint springs couple bones and
-                        nodes, which only a factorization captures (Jacobi hits the iteration cap)
+  PRECOND_FACTOR        a sparse LDLᵀ of a recent M + dt^2 H (default; ldlt.py, its solves in dense
+                        panels: panels.py), refreshed in equal slices every step: the stiff
+                        bone-tissue and joint springs couple bones and nodes, which only a
+                        factorization captures (Jacobi hits the iteration cap)
   PRECOND_TWO_LEVEL     Gauss-Seidel sweeps around a Galerkin correction on the coarse hand's mesh
                         (two_level.py): no factor of the fine system, for the fine hand
 """
