@@ -468,7 +468,7 @@ def format_profile(row):
     c = row.get("factor_cost")
     if c:
         lines.append(f"factor: {c['factor_ms']:.3f} ms = {c['measured']:.1f} CG iterations of "
-                     f"{c['iteration_ms']:.4f} ms (estimated from flops: {c['estimated']:.1f}; "
+                     f"{c['iteration_ms']:.4f} ms (estimated: {c['estimated']:.1f}; "
                      f"{c['slices']} slice(s); --set factor_cost_scale={c['matching_scale']:.2f} "
                      f"would match)")
     return "\n".join(lines)
