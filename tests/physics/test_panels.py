@@ -6,34 +6,20 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
-from softhand_sim.commands import bench
 from softhand_sim.physics import ldlt, panels, pcg
-from softhand_sim.physics.model import build_model
-from softhand_sim.physics.solver import Solver, hand_block_groups
-
-
-def stepped(assets, steps=30, scenario="free"):
-    """A model of the benchmark's hands after `steps` steps of its open-close: (model, solver)."""
-    scene = bench.check_case(scenario, len(assets))[scenario]
-    asset = assets[0] if len(assets) == 1 else assets
-    model = build_model(asset, {"preconditioner": "factor"}, objects=scene.objects(asset))
-    solver = Solver(model)
-    state, control = model.initial_state(), model.control()
-    update = scene(solver, state, control)
-    for k in range(steps):
-        update(k, k * bench.DT)
-        solver.step(state, control, bench.DT)
-    return model, solver, state
+from softhand_sim.physics.solver import hand_block_groups
+from tests.support.bench_runs import scene_run
 
 
 @pytest.fixture(scope="module")
 def two_coarse():
-    return stepped([bench._asset("coarse")[0], bench._asset("coarse", "left")[0]])
+    """Two coarse hands after 30 steps of the benchmark's open-close: (model, solver)."""
+    return scene_run("free", ["coarse", "coarse"], 30, preconditioner="factor")[:2]
 
 
 @pytest.fixture(scope="module")
 def fine():
-    return stepped([bench._asset("fine")[0]], steps=20)
+    return scene_run("free", ["fine"], 20, preconditioner="factor")[:2]
 
 
 def column_solve(sym, L, D_inv, r):
@@ -46,7 +32,7 @@ def test_postorder_keeps_the_fill_and_each_hand_in_its_rows(two_coarse):
     """The default ordering (each hand's minimum degree, then the etree postordered within each
     hand's rows) has the fill and flops of the same ordering unpostordered, each hand's blocks in
     its own rows still, and chains of consecutive columns: most columns' parent is the next one."""
-    model, *_ = two_coarse
+    model, _ = two_coarse
     groups = hand_block_groups(model)
     n = model.dof_count
     post = ldlt.Symbolic(model.indptr, model.indices, n, groups=groups)
@@ -71,7 +57,7 @@ def test_panels_hold_every_entry_of_l_and_zeros_elsewhere(two_coarse):
     """Rebuilt from the panels (each panel's columns by its rows), L is the factor's L entry for
     entry; no panel spans a hand's rows and the next ones; each panel is at most NARROW columns
     wide or at most ZERO_SHARE zeros; relaxing left fewer panels than fundamental supernodes."""
-    model, solver, _ = two_coarse
+    model, solver = two_coarse
     f = solver.factor
     f.refresh(model.indptr, model.indices, solver.values)
     pn, sym = f.panels, f.sym
@@ -115,7 +101,7 @@ def test_panels_hold_every_entry_of_l_and_zeros_elsewhere(two_coarse):
 def test_panel_solve_is_the_column_solve(two_coarse):
     """The panels' solve (one thread and by hand) equals ldlt.ldlt_solve with the same L and D:
     to round-off in float64 panels; in float32 ones, to round-off that of L rounded to float32."""
-    model, solver, _ = two_coarse
+    model, solver = two_coarse
     f = solver.factor
     f.refresh(model.indptr, model.indices, solver.values)
     pn, sym = f.panels, f.sym
@@ -140,7 +126,7 @@ def test_the_fine_hands_float32_panels_converge_as_the_factor_does(fine):
     """The fine hand's panels are float32 (1.2 million values; two coarse hands' float64: above). With
     a fresh factor of the step's matrix, PCG to the default tolerance 1e-5 takes at most 2
     iterations, and on to 1e-9 at most 5: the rounding leaves a preconditioner close to A⁻¹."""
-    model, solver, state = fine
+    model, solver = fine
     f = solver.factor
     assert f.panels.dtype == np.float32 and f.panels.size > panels.F64_PANEL_VALUES
     f.refresh(model.indptr, model.indices, solver.values)

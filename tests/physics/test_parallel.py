@@ -9,6 +9,7 @@ from softhand_sim.commands import bench
 from softhand_sim.physics import panels, parallel, pcg
 from softhand_sim.physics.model import build_model
 from softhand_sim.physics.solver import Solver
+from tests.support.bench_runs import run_scene
 
 STEPS = 40
 
@@ -21,13 +22,7 @@ def two_hand_grip(threads):
     model = build_model(assets, {**scene.params(), "solver_threads": threads},
                         objects=scene.objects(assets))
     solver = Solver(model, contacts=scene.contacts(model))
-    state, control = model.initial_state(), model.control()
-    update = scene(solver, state, control)
-    iterations = []
-    for k in range(STEPS):
-        update(k, k * bench.DT)
-        iterations.append(solver.step(state, control, bench.DT).cg_iters)
-    return solver, state, iterations
+    return (solver,) + run_scene(scene, model, solver, STEPS)
 
 
 @pytest.fixture(scope="module")

@@ -10,28 +10,14 @@ from softhand_sim.commands import bench
 from softhand_sim.physics import two_level
 from softhand_sim.physics.model import build_model, rigid_asset
 from softhand_sim.physics.solver import Solver
+from tests.support.bench_runs import run_scene, scene_run
 
 STEPS = 40
 
 
-def run_scene(scene, model, solver, steps=STEPS):
-    """STEPS of a benchmark scene from the model's initial state: (state, CG iterations per step)."""
-    state, control = model.initial_state(), model.control()
-    update = scene(solver, state, control)
-    iterations = []
-    for k in range(steps):
-        update(k, k * bench.DT)
-        iterations.append(solver.step(state, control, bench.DT).cg_iters)
-    return state, iterations
-
-
 def free_motion(preconditioner, mesh="fine"):
     """The benchmark's open-close of one hand: (model, solver, state, CG iterations per step)."""
-    scene = bench.check_case("free", 1)["free"]
-    asset = bench._asset(mesh)[0]
-    model = build_model(asset, {"preconditioner": preconditioner}, objects=scene.objects(asset))
-    solver = Solver(model)
-    return (model, solver) + run_scene(scene, model, solver)
+    return scene_run("free", [mesh], STEPS, preconditioner=preconditioner)
 
 
 @pytest.fixture(scope="module")
@@ -157,7 +143,7 @@ def test_two_threads_sweep_each_hand_as_one_thread_does():
                             coarse_meshes=[(a.tet_nodes, a.tets) for a in assets])
         solver = Solver(model, contacts=scene.contacts(model))
         assert solver.coarse.rows.shape[0] == threads
-        runs.append(run_scene(scene, model, solver) + (solver,))
+        runs.append(run_scene(scene, model, solver, STEPS) + (solver,))
     (x1, it1, _), (x2, it2, solver) = runs
     assert solver.last_stats.contacts > 100  # the box's rows couple both hands
     model, values = solver.model, solver.values
