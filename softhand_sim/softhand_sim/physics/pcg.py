@@ -90,8 +90,9 @@ class Factor:
         if self.slice_flops is None:
             # K slices: a factor at most 2K steps old and CG's iterations on it growing with K,
             # against F/K a step. Measured on the fine hand (free, press, grasp; K = 4, 5, 6, 8,
-            # 11): K = 6 the least mean step (free: 5.8 ms against 6.2-7.6), and the rule puts
-            # the fine hand there and the coarse one at K = 1 (9 iterations: 0.86)
+            # 11; two runs each): K = 6 the lowest mean step over both runs (free: 5.8-5.9 ms; K =
+            # 4 5.7-6.5 with a p99 of 15-18 ms against 12-13), and the rule puts the fine hand
+            # there and the coarse one at K = 1 (9 iterations: 0.86)
             want = int(SLICES_PER_ITERATION * self.iterations_per_factor)  # rounded down
         else:
             want = int(np.ceil(sym.flops / self.slice_flops))
