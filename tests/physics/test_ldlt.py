@@ -12,6 +12,7 @@ from softhand_sim.physics.factor_hold import FactorHold
 from softhand_sim.scenarios.bench_scenes import box_hand_with_tets
 from softhand_sim.physics.model import build_model
 from softhand_sim.physics.solver import Solver
+from tests.support.solver_fixtures import column_solve
 
 
 @pytest.fixture(scope="module")
@@ -31,13 +32,6 @@ def _matrix(m, values):
     return sp.csr_matrix((values, m.indices, m.indptr), shape=(n, n))
 
 
-def column_solve(f, r):
-    """z = A⁻¹ r with the factor's L and D in float64, column by column (ldlt.ldlt_solve)."""
-    z = np.zeros_like(r)
-    ldlt.ldlt_solve(f.sym.Lp, f.sym.Li, f.L, f.D_inv, f.sym.perm, np.zeros_like(r), r, z)
-    return z
-
-
 def assert_solves(f, m, values, r):
     """The factor is A's to round-off: its L and D column by column and the preconditioner's
     solve in panels (float64: a small model's) against scipy's direct solve, 1e-9."""
@@ -45,7 +39,7 @@ def assert_solves(f, m, values, r):
     ref = spsolve(_matrix(m, values).tocsc(), r)
     z = np.zeros_like(r)
     f.solve(r, z)
-    for got in (column_solve(f, r), z):
+    for got in (column_solve(f.sym, f.L, f.D_inv, r), z):
         assert np.linalg.norm(got - ref) <= 1e-9 * np.linalg.norm(ref)
 
 

@@ -9,6 +9,7 @@ import scipy.sparse as sp
 from softhand_sim.physics import ldlt, panels, pcg
 from softhand_sim.physics.solver import hand_block_groups
 from tests.support.bench_runs import scene_run
+from tests.support.solver_fixtures import column_solve
 
 
 @pytest.fixture(scope="module")
@@ -20,12 +21,6 @@ def two_coarse():
 @pytest.fixture(scope="module")
 def fine():
     return scene_run("free", ["fine"], 20, preconditioner="factor")[:2]
-
-
-def column_solve(sym, L, D_inv, r):
-    z = np.zeros_like(r)
-    ldlt.ldlt_solve(sym.Lp, sym.Li, L, D_inv, sym.perm, np.zeros_like(r), r, z)
-    return z
 
 
 def test_postorder_keeps_the_fill_and_each_hand_in_its_rows(two_coarse):

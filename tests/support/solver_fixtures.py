@@ -1,6 +1,9 @@
-"""Meshes and small rigid scenes built in tests (no hand model needed): boxes of tets, bodies."""
+"""Meshes and small rigid scenes built in tests (no hand model needed): boxes of tets, bodies; and
+the references the solver's fast paths are checked against (the SVD's polar rotation, the
+factor's block-by-block solve)."""
 import numpy as np
 
+from softhand_sim.physics import ldlt
 from softhand_sim.physics.model import rigid_asset
 
 # Kuhn split of a unit cube into 6 tets sharing the main diagonal (conforming across cubes)
@@ -50,6 +53,14 @@ def svd_polar(F):
     if np.linalg.det(U @ Vt) < 0:
         U[:, 2] *= -1
     return U @ Vt
+
+
+def column_solve(sym, L, D_inv, r):
+    """z = A⁻¹ r with the factor (ldlt.Symbolic sym, L's blocks, D⁻¹) block column by block column
+    (ldlt.ldlt_solve, float64): the reference of the preconditioner's panel solve."""
+    z = np.zeros_like(r)
+    ldlt.ldlt_solve(sym.Lp, sym.Li, L, D_inv, sym.perm, np.zeros_like(r), r, z)
+    return z
 
 
 def dense_slots(stencils, n):

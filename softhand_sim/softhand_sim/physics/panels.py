@@ -239,6 +239,7 @@ def panel_solve(starts, rptr, rows, off, values, Dinv, perm, tmp, u, r, z):
     nb = perm.shape[0]
     S = starts.shape[0] - 1
     gather_rows(0, nb, perm, r, tmp)
+    # every row is below nb: nothing goes to an accumulator (u stands in for one, never written)
     panel_forward(0, S, starts, rptr, rows, off, values, Dinv, tmp, u, nb, u)
     panel_backward(0, S, starts, rptr, rows, off, values, tmp, u)
     scatter_rows(0, nb, perm, tmp, z)
