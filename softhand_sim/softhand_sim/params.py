@@ -172,6 +172,10 @@ SIM = {
                            "the project's 2-core test machine), factor_hold's unit and what sets the slice count; "
                            "`softhand bench --profile` measures the ratio on your machine and prints the value "
                            "that matches it", 0.01, 100.0),
+    "factor_background": P(bool, False, "-", "factor preconditioner: run each factorization spread over "
+                           "several steps (the fine hand's) whole on a thread of its own while the steps go on, "
+                           "instead of a slice in each step; the new factor comes into use at the same step, so "
+                           "the run is the same; for a machine with a core to spare (one hand on two cores)"),
     "two_level_refresh_steps": P(int, 12, "-", "two_level preconditioner: its coarse matrix P^T A P and that matrix's "
                                  "factor computed anew every this many steps, spread over them (the whole of it "
                                  "after a CG that took more than 4 times factor_refresh_iterations)", 1, 100000),

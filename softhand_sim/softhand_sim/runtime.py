@@ -228,7 +228,8 @@ class SimRuntime:
                 f"{m.node_count} nodes, {m.dof_count} dofs, {tris} skin triangles, objects "
                 f"{self.object_names}, contact points {self.contacts.model.point_count}, "
                 f"preconditioner {self.params['preconditioner']}, {self.params['sim_rate']:g} Hz, "
-                f"solver threads {self.solver.threads}")
+                f"solver threads {self.solver.threads}"
+                + (", factorizations in the background" if self.solver.factor.threaded else ""))
 
     def skin_rest_mesh(self, hand=None):
         """(vertices (V,3), triangles) of a hand's skin at its rest pose (default: the first hand)."""

@@ -208,7 +208,7 @@ def _inv3_spd(A, out):
     return False
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)  # nogil: pcg.Factor may run it on a thread of its own
 def ldlt_numeric_rows(k0, k1, values, blk_slots, up_ptr, up_row, up_slot, row_ptr, row_col,
                       row_slot, Lp, Li, Lx, Dinv, Y):
     """Block rows k0..k1-1 of the block LDLᵀ (3x3 blocks, up-looking): P A Pᵀ = L D Lᵀ with L unit

@@ -40,12 +40,19 @@ class Factor:
     in parallel and the solves run the groups in parallel (parallel.py); the shared rows (the
     objects) stay on one thread, at the end of the last slice and between the solves' passes.
 
+    With background (factor_background) and K > 1, the factorizations run whole, one after the
+    other, on a thread of their own (the kernel releases the GIL): a step never factors, and
+    each factor comes into use at the first step after it is done, on the step's core. The hold
+    and the two slices a step do not apply there.
+
     arrays: the tuple pcg() passes to the triangular solves (the factor in use; its last three
     entries are empty on one thread)."""
 
     def __init__(self, n, indptr=None, indices=None, slice_flops=None, max_slices=50, groups=None,
-                 threads=1, cost_scale=1.0):
+                 threads=1, cost_scale=1.0, background=False):
         self.n = n
+        self.background = bool(background)  # factorizations on a thread of their own (analyse)
+        self._job = None
         self.valid = False
         self.sym = None
         nb = n // 3
@@ -126,6 +133,15 @@ class Factor:
         self._u = np.zeros(pn.longest)
         self._next = 0          # next slice of the factorization in progress (0: none started)
         self.bad_pivots = 0
+        # in the background (a factorization that would be spread over several steps only): the
+        # whole factorization runs on a thread while the steps go on, and its factor comes into
+        # use at the first step after it is done, when the next one starts. So the factor in use
+        # depends on the thread's timing: a run is no longer repeatable to the bit (to CG's
+        # tolerance it is). Waiting for it at a fixed step instead would be: measured, the fine
+        # press's steps in contact (2.2 ms) waited 14 ms for it every 6 steps
+        self._threaded = self.background and self.slices > 1
+        self._pool = None
+        self._started = None
 
     def _run_slice(self, s, values):
         from softhand_sim.physics.ldlt import ldlt_numeric_rows
@@ -172,14 +188,21 @@ class Factor:
         factor_solve(self.arrays, r, z)
 
     @property
+    def threaded(self):
+        """True when factorizations run on a thread of their own (`background`, several slices)."""
+        return self._threaded
+
+    @property
     def in_progress(self):
-        """True while a factorization spread over steps has slices left to run."""
-        return self._next > 0
+        """True while a factorization spread over steps has slices left to run (or runs in the
+        background)."""
+        return self._next > 0 or self._job is not None
 
     def refresh(self, indptr, indices, values):
         """A complete factorization of values now (the first step, or on demand)."""
         if self.sym is None:
             self.analyse(indptr, indices)
+        self._join()  # one in the background is waited for, then overwritten (the same buffers)
         src = self._source(values)
         for s in range(self.slices):
             self._run_slice(s, src)
@@ -188,7 +211,11 @@ class Factor:
 
     def advance(self, values, slices=1):
         """Factor the next `slices` slices; a new snapshot of values starts each factorization.
-        Returns True when a new factor was published in this call."""
+        Returns True when a new factor was published in this call. In the background (`threaded`)
+        `slices` is not read: the finished factorization, if the thread has one, is published and
+        the next one started."""
+        if self._threaded:
+            return self._advance_background(values)
         published = False
         for _ in range(slices):
             src = self._source(values) if self._next == 0 else self._snap
@@ -199,6 +226,53 @@ class Factor:
                 self._publish()
                 published = True
         return published
+
+    def _advance_background(self, values):
+        """`background`: publish the factorization the thread has finished, if it has, and start
+        the next one on a snapshot of values; never waits for the thread."""
+        if self._job is not None and not self._job.done():
+            return False
+        published = self._job is not None
+        if published:
+            self._join()
+            self._publish()
+        self._start(self._source(values))
+        return published
+
+    def _start(self, values):
+        """The whole factorization of values on the factor's thread (`background`)."""
+        if self._pool is None:
+            import threading
+            from concurrent.futures import ThreadPoolExecutor
+            self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="softhand-factor")
+            self._started = threading.Event()
+        self._started.clear()
+        self._job = self._pool.submit(self._factor_all, values)
+        # wait (GIL released) until the thread is inside the kernel, which releases the GIL: else
+        # it would wait for this thread's next switch interval (5 ms) to start
+        self._started.wait()
+
+    def _factor_all(self, values):
+        from softhand_sim.physics.ldlt import ldlt_numeric_rows
+        sym = self.sym
+        self._started.set()
+        # all rows in order: each row's arithmetic is the same as in slices or by group (a group's
+        # rows read only its own; the shared rows come last either way)
+        return ldlt_numeric_rows(0, sym.nb, values, sym.blk_slots, sym.up_ptr, sym.up_row, sym.up_slot,
+                                 sym.row_ptr, sym.row_col, sym.row_slot, sym.Lp, sym.Li, self._L, self._D,
+                                 self._y)
+
+    def wait(self):
+        """Wait for the factorization running in the background, if one is: it comes into use at
+        the next advance (for tests and tools; the solver never waits)."""
+        if self._job is not None:
+            self._job.result()
+
+    def _join(self):
+        """Wait for the factorization in the background, if one runs, and count its bad pivots."""
+        if self._job is not None:
+            job, self._job = self._job, None
+            self.bad_pivots += job.result()
 
 
 def triplet_pattern(indptr, indices):

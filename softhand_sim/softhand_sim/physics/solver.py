@@ -22,6 +22,7 @@ StepStats times the stages (STAGE_FIELDS, wall clock): collision and self_collis
 (2. and the system's finalisation), factor (the factor preconditioner's LDL^T refresh slice, between
 2. and 3.), pcg (3.), advance (4.); setup_ms = assembly + factor, solve_ms = pcg + advance.
 """
+import os
 import time
 from dataclasses import dataclass
 
@@ -165,9 +166,22 @@ class Solver:
                                  f"{numba.config.NUMBA_NUM_THREADS} threads in this process "
                                  f"(NUMBA_NUM_THREADS, default the core count)")
         groups = hand_block_groups(m)
+        if p["factor_background"] and self.precond == pcg_mod.PRECOND_FACTOR:
+            # the factorization's thread beside the step's: on a core the step uses, both would
+            # crawl (measured: two fine hands with solver_threads 2 and a third thread on two cores
+            # ran 2-3 times slower)
+            cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+            busy = self.threads if groups is not None else 1  # one hand: one thread
+            if busy >= cores:
+                hands = m.hands.count if m.hands is not None else 1
+                raise ValueError(
+                    f"factor_background=true needs a core beside the step's {busy} "
+                    f"(solver_threads={self.threads}, {hands} hand(s)) and this process has "
+                    f"{cores}: set factor_background false" + (f" or solver_threads {cores - 1}" if busy > 1 else ""))
         self.factor = (pcg_mod.Factor(model.dof_count, m.indptr, m.indices, max_slices=self.refactor_every,
                                       groups=groups, threads=self.threads,
-                                      cost_scale=float(p["factor_cost_scale"]))
+                                      cost_scale=float(p["factor_cost_scale"]),
+                                      background=bool(p["factor_background"]))
                        if self.precond == pcg_mod.PRECOND_FACTOR else pcg_mod.Factor(model.dof_count))
         # on a kept factor CG may take at most a factorization's worth of iterations (step)
         self._held_limit = min(self.cg_max_iter, max(2, int(np.ceil(self.factor.iterations_per_factor))))
@@ -337,10 +351,12 @@ class Solver:
                                          and self._last_iters > 4 * self.refactor_iters):
                 self.factor.refresh(m.indptr, m.indices, self.values)
                 refactored = True
-            elif not self.factor.in_progress and self.hold.keep(self._last_iters,
-                                                                 self.factor.iterations_per_factor):
+            elif (not self.factor.in_progress and not self.factor.threaded
+                  and self.hold.keep(self._last_iters, self.factor.iterations_per_factor)):
                 held = True
             else:
+                # in the background (factor.threaded) a factorization costs this thread nothing, so
+                # none is held off, and slices are not counted: it comes into use when it is done
                 catch_up = self._last_iters > self.refactor_iters and self.factor.slices > 1
                 refactored = self.factor.advance(self.values, 2 if catch_up else 1)
             if refactored:
