@@ -45,7 +45,7 @@ from softhand_sim.scene import SceneError
 from softhand_sim.ros.common import LATCHED_QOS, LATEST_QOS, PUB_QOS, SENSOR_QOS, STREAM_QOS, DiagnosticsPublisher, RejectionLog, RateMeter, fail, run_node, split_cli
 from softhand_sim.ros.params import declare_node_params
 from softhand_sim.ros.tf import TfBroadcaster
-from softhand_sim.timing import StepStats
+from softhand_sim.timing import StepStats, slow_motion
 from softhand_sim.topics import hand_topic
 
 NODE_NAME = "sim_node"
@@ -375,6 +375,12 @@ class SimNode(Node):
         if self.last_guard_warning:  # the latest divergence stays visible in the status line
             message = f"{message}; {values['rejected_steps']} step(s) rejected, last: {self.last_guard_warning}"
         level = "warn" if values.get("rejected_steps", 0) else "ok"
+        # the ticks' median period, not their mean rate: a pause (a new hand size) is no overload
+        tick_hz = 1e3 / rate["period_p50_ms"] if rate["period_p50_ms"] > 0 else math.inf
+        behind = slow_motion(tick_hz, rate["count"], self.dt, self.max_step, values["step_ms_p50"])
+        if behind:  # in the status line while it lasts, and in the log
+            message, level = f"{message}; {behind}", "warn"
+            self.get_logger().warning(behind, throttle_duration_sec=10.0)
         return values, level, message
 
 

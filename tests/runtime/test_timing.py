@@ -6,6 +6,7 @@ the times passed in.
 import numpy as np
 import pytest
 
+from softhand_sim import timing
 from softhand_sim.timing import FixedRateScheduler, StepStats
 
 MS = 1_000_000  # [ns]
@@ -114,3 +115,20 @@ def test_step_stats_empty_is_nan():
     assert st.count == 0 and st.over_budget == 0 and len(st) == 0
     with pytest.raises(ValueError, match="window"):
         StepStats(window=0)
+
+
+def test_slow_motion_warns_only_a_loop_behind_real_time_without_max_step():
+    """timing.slow_motion: a 200 Hz loop whose ticks come every 5.7 ms (175 Hz) after 300 steps is
+    behind real time, and the warning names the period, the rate and both remedies; the same loop
+    within 10 % of its rate, before SLOW_MOTION_STEPS steps, or with max_step above its period
+    (longer steps keep real time) is not."""
+    dt = 1.0 / 200.0
+    text = timing.slow_motion(175.4, 300, dt, 0.0, 4.6)
+    assert text is not None
+    for part in ("ticks every 5.7 ms", "step p50 4.6 ms", "sim_rate 200 Hz", "simulates 5.0 ms",
+                 "lower sim_rate", "max_step (e.g. 0.01 s)"):
+        assert part in text, (part, text)
+    assert timing.slow_motion(181.0, 300, dt, 0.0, 4.6) is None   # 0.905 of the rate
+    assert timing.slow_motion(175.4, timing.SLOW_MOTION_STEPS - 1, dt, 0.0, 4.6) is None
+    assert timing.slow_motion(175.4, 300, dt, 0.01, 4.6) is None  # max_step keeps real time
+    assert timing.slow_motion(175.4, 300, dt, dt, 4.6) is not None  # max_step <= dt: no longer steps
