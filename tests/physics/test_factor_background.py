@@ -90,3 +90,15 @@ def test_the_background_needs_a_core_beside_the_steps(two_coarse):
                                          rf"{cores}: set factor_background false or solver_threads {cores - 1}"):
         Solver(model, params={"factor_background": True, "solver_threads": cores})
     Solver(model, params={"factor_background": True, "solver_threads": cores - 1})
+
+
+def test_a_runtime_without_the_factor_describes_itself():
+    """The placeholder Factor of a solver with another preconditioner (jacobi), which never
+    analyses a pattern, answers `threaded` and `in_progress`: SimRuntime.describe (sim_node's
+    start-up line) reads them."""
+    from softhand_sim.params import load_params
+    from softhand_sim.runtime import SimRuntime
+    rt = SimRuntime(dict(load_params("sim_node"), preconditioner="jacobi", factor_background=True))
+    assert not rt.solver.factor.threaded and not rt.solver.factor.in_progress
+    text = rt.describe()
+    assert "preconditioner jacobi" in text and "background" not in text

@@ -52,7 +52,9 @@ class Factor:
                  threads=1, cost_scale=1.0, background=False):
         self.n = n
         self.background = bool(background)  # factorizations on a thread of their own (analyse)
-        self._job = None
+        self._threaded = False  # ... when there is a factorization spread over steps (analyse)
+        self._next = 0
+        self._job = self._pool = self._started = None
         self.valid = False
         self.sym = None
         nb = n // 3
@@ -140,8 +142,6 @@ class Factor:
         # tolerance it is). Waiting for it at a fixed step instead would be: measured, the fine
         # press's steps in contact (2.2 ms) waited 14 ms for it every 6 steps
         self._threaded = self.background and self.slices > 1
-        self._pool = None
-        self._started = None
 
     def _run_slice(self, s, values):
         from softhand_sim.physics.ldlt import ldlt_numeric_rows
