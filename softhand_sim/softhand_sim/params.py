@@ -172,10 +172,13 @@ SIM = {
                            "the project's 2-core test machine), factor_hold's unit and what sets the slice count; "
                            "`softhand bench --profile` measures the ratio on your machine and prints the value "
                            "that matches it", 0.01, 100.0),
-    "factor_background": P(bool, False, "-", "factor preconditioner: run each factorization spread over "
-                           "several steps (the fine hand's) whole on a thread of its own while the steps go on, "
-                           "instead of a slice in each step; the new factor comes into use at the same step, so "
-                           "the run is the same; for a machine with a core to spare (one hand on two cores)"),
+    "factor_background": P(bool, False, "-", "factor preconditioner: run the factorizations that are spread "
+                           "over several steps (the fine hand's) whole on a thread of its own while the steps go "
+                           "on, instead of a slice in each step: each factor comes into use at the first step "
+                           "after it is done and the next one starts, none is held; a lower p99 step, but a "
+                           "second core busy and a run that repeats only to CG's tolerance (the factor a step "
+                           "uses depends on the thread's timing); for a core to spare (one hand on two cores; "
+                           "refused when solver_threads takes every core)"),
     "two_level_refresh_steps": P(int, 12, "-", "two_level preconditioner: its coarse matrix P^T A P and that matrix's "
                                  "factor computed anew every this many steps, spread over them (the whole of it "
                                  "after a CG that took more than 4 times factor_refresh_iterations)", 1, 100000),
