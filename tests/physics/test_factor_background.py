@@ -8,7 +8,7 @@ import os
 import numpy as np
 import pytest
 
-from softhand_sim.physics import pcg
+from softhand_sim.physics import ldlt, pcg
 from softhand_sim.physics.solver import Solver, hand_block_groups
 from tests.support.bench_runs import scene_run
 
@@ -23,7 +23,7 @@ def _factor(model, background, threads, slices=4):
     """A factor of the model's pattern spread over `slices` slices (the coarse hands' own rule
     gives one, which no thread takes over)."""
     groups = hand_block_groups(model)
-    flops = pcg.Factor(model.dof_count, model.indptr, model.indices, groups=groups).sym.flops
+    flops = ldlt.Symbolic(model.indptr, model.indices, model.dof_count, groups=groups).flops
     return pcg.Factor(model.dof_count, model.indptr, model.indices, slice_flops=flops / (slices - 0.5),
                       groups=groups, threads=threads, background=background)
 

@@ -143,11 +143,16 @@ class Factor:
         # press's steps in contact (2.2 ms) waited 14 ms for it every 6 steps
         self._threaded = self.background and self.slices > 1
 
+    def _rows_args(self, values):
+        """The arguments of ldlt_numeric_rows (and factor_rows_by_group) after the row bounds."""
+        sym = self.sym
+        return (values, sym.blk_slots, sym.up_ptr, sym.up_row, sym.up_slot, sym.row_ptr, sym.row_col,
+                sym.row_slot, sym.Lp, sym.Li, self._L, self._D, self._y)
+
     def _run_slice(self, s, values):
         from softhand_sim.physics.ldlt import ldlt_numeric_rows
         sym = self.sym
-        rows = (values, sym.blk_slots, sym.up_ptr, sym.up_row, sym.up_slot, sym.row_ptr, sym.row_col,
-                sym.row_slot, sym.Lp, sym.Li, self._L, self._D, self._y)
+        rows = self._rows_args(values)
         if not self.by_group:
             self.bad_pivots += ldlt_numeric_rows(int(self.bounds[s]), int(self.bounds[s + 1]), *rows)
             return
@@ -254,13 +259,10 @@ class Factor:
 
     def _factor_all(self, values):
         from softhand_sim.physics.ldlt import ldlt_numeric_rows
-        sym = self.sym
         self._started.set()
         # all rows in order: each row's arithmetic is the same as in slices or by group (a group's
         # rows read only its own; the shared rows come last either way)
-        return ldlt_numeric_rows(0, sym.nb, values, sym.blk_slots, sym.up_ptr, sym.up_row, sym.up_slot,
-                                 sym.row_ptr, sym.row_col, sym.row_slot, sym.Lp, sym.Li, self._L, self._D,
-                                 self._y)
+        return ldlt_numeric_rows(0, self.sym.nb, *self._rows_args(values))
 
     def wait(self):
         """Wait for the factorization running in the background, if one is: it comes into use at
