@@ -90,7 +90,8 @@ def local_profile():
 def names_transports(profile) -> bool:
     """Whether a Fast DDS profile file defines transports (unreadable: assume it does)."""
     try:
-        text = open(profile, encoding="utf-8", errors="replace").read()
+        with open(profile, encoding="utf-8", errors="replace") as f:
+            text = f.read()
     except OSError:
         return True
     return "<userTransports>" in text or "<transport_descriptor>" in text
