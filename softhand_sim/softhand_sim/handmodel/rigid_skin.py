@@ -27,7 +27,10 @@ def vertex_normals(vertices, triangles):
     normals = np.zeros_like(v)
     for k in range(3):
         np.add.at(normals, tri[:, k], face)
-    return normals / np.linalg.norm(normals, axis=1)[:, None]
+    length = np.linalg.norm(normals, axis=1)[:, None]
+    # a vertex on no triangle keeps a zero normal, not NaN: the self-contact kernel skips a contact
+    # whose depth along a zero normal is 0, where NaN would pass its depth tests
+    return np.divide(normals, length, out=np.zeros_like(normals), where=length > 0.0)
 
 
 class RigidSkin:
