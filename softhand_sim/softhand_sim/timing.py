@@ -125,11 +125,11 @@ SLOW_MOTION_STEPS = 200  # ... measured over at least this many steps (not the s
 def slow_motion(rate_hz, steps, dt, max_step, step_ms_p50):
     """The warning for a sim loop that steps dt [s] a tick but ticks at rate_hz < 1/dt (its median
     period's inverse, after `steps` >= SLOW_MOTION_STEPS), with max_step <= dt (no longer steps to
-    keep real time); None when it keeps its rate or keeps real time. Such a loop takes its targets and the world's copies
-    at the wall clock's time but simulates only dt of the longer time between its ticks: the hand is
-    pulled toward targets that run ahead of it and a gripped object between two clocks (measured: the
-    fine hand at 200 Hz stepping at 134-144 Hz threw the ball of grasp_lift a metre up; with max_step
-    0.01 s it lifted it 17.4 cm as offline)."""
+    keep real time); None when it keeps its rate or keeps real time. Such a loop takes its targets
+    and the world's copies at the wall clock's time but simulates only dt of the longer time
+    between its ticks: the hand is pulled toward targets that run ahead of it and a gripped object
+    between two clocks (measured: the fine hand at 200 Hz stepping at 134-144 Hz threw the ball of
+    grasp_lift a metre up; with max_step 0.01 s it lifted it 17.4 cm as offline)."""
     if max_step > dt or steps < SLOW_MOTION_STEPS or not rate_hz * dt < SLOW_MOTION_SHARE:
         return None
     return (f"behind real time: ticks every {1e3 / rate_hz:.1f} ms (median; step p50 {step_ms_p50:.1f} ms) "
