@@ -140,6 +140,13 @@ class ProcessSet:
     def alive(self, name):
         return self.procs[name][0].poll() is None
 
+    def exited(self, skip=()):
+        """The children (but those in `skip`) that have exited, in the order they were started."""
+        return [name for name, (proc, _) in self.procs.items() if name not in skip and proc.poll() is not None]
+
+    def returncode(self, name):
+        return self.procs[name][0].returncode
+
     def stop(self, name, grace=10.0):
         self.interrupt(name)
         return self.reap(name, grace)
@@ -180,6 +187,21 @@ class ProcessSet:
         return "\n".join(path.read_text(errors="replace").splitlines()[-lines:]) if path.exists() else ""
 
 
+def wait_watching(proc, procs, skip=(), what="the run went on", poll_s=0.2):
+    """Wait for `proc` (one of procs) to exit; SystemExit with the log of any other child of
+    procs (but those in `skip`) that exits first. A node that dies mid-run (the recorder refusing
+    its output, a crash) ends the run with its own words at once, rather than when the player gives
+    up waiting for its subscription (30 s) and blames itself."""
+    while proc.poll() is None:
+        dead = [name for name in procs.exited(skip) if procs.procs[name][0] is not proc]
+        if dead:
+            name = dead[0]
+            raise SystemExit(f"error: {name} exited (code {procs.returncode(name)}) while {what}:\n"
+                             f"{procs.tail(name)}")
+        time.sleep(poll_s)
+    return proc.returncode
+
+
 def run_demo(bag, out_dir, rate=1.0, params_file=None, preview=True, startup_timeout=600.0, quiet=False, view=False,
              legacy_side="right", repeat=1):
     """Run the node set over `bag`; returns the summary dict (also written to out_dir/summary.json).
@@ -188,6 +210,9 @@ def run_demo(bag, out_dir, rate=1.0, params_file=None, preview=True, startup_tim
     legacy_side: the hand an old single-hand bag (/tracker/hand_joints) is played as."""
     say = (lambda *a: None) if quiet else (lambda *a: print(*a, flush=True))
     out_dir = Path(out_dir)
+    if (out_dir / "bag").exists():  # the recorder would refuse it only once every node is up
+        raise SystemExit(f"error: --out {out_dir} holds a recording already ({out_dir / 'bag'}); choose a new "
+                         f"directory (without --out each run gets its own runs/<stamp>)")
     out_dir.mkdir(parents=True, exist_ok=True)
     env = isolated_env()
     apply_isolated_env(env["ROS_DOMAIN_ID"])  # this process watches the same (private) domain
@@ -224,7 +249,7 @@ def run_demo(bag, out_dir, rate=1.0, params_file=None, preview=True, startup_tim
         say(f"  nodes up after {time.monotonic() - t0:.1f} s; playing {bag.name} at rate {rate}")
         play = procs.start("play", [console_script("softhand-play"), str(bag), "--rate", str(rate), "--repeat", str(repeat),
                                     "--hand", legacy_side, "--wait-for-nodes", *tracker_subscribers(sides), *ros])
-        play.wait()
+        wait_watching(play, procs, skip=("view",), what=f"{bag.name} played")
         if play.returncode != 0:
             raise SystemExit(f"error: play_node failed:\n{procs.tail('play')}")
         time.sleep(DRAIN_S)

@@ -17,9 +17,8 @@ def wait_for_topics(topics, timeout, procs):
             missing = [t for t in topics if node.count_publishers(t) == 0]
             if not missing:
                 return []
-            for name in procs.procs:
-                if not procs.alive(name):
-                    raise SystemExit(f"error: {name} node exited during start-up:\n{procs.tail(name)}")
+            for name in procs.exited():
+                raise SystemExit(f"error: {name} node exited during start-up:\n{procs.tail(name)}")
             rclpy.spin_once(node, timeout_sec=0.2)
         return missing
     finally:
