@@ -30,6 +30,7 @@ import time
 from datetime import datetime
 from pathlib import Path
 
+from softhand_sim.params import ParamError, read_params_file
 from softhand_sim.paths import REPO_ROOT, bag_params_file, bag_path, bags_dir
 from softhand_sim.ros.env import apply_isolated_env, isolated_env
 from softhand_sim.ros.probe import wait_for_topics
@@ -210,6 +211,11 @@ def run_demo(bag, out_dir, rate=1.0, params_file=None, preview=True, startup_tim
     legacy_side: the hand an old single-hand bag (/tracker/hand_joints) is played as."""
     say = (lambda *a: None) if quiet else (lambda *a: print(*a, flush=True))
     out_dir = Path(out_dir)
+    if params_file is not None:  # missing or not a params file: said now, not by every node at start
+        try:
+            read_params_file(params_file)
+        except ParamError as exc:
+            raise SystemExit(f"error: --params-file: {exc}") from None
     if (out_dir / "bag").exists():  # the recorder would refuse it only once every node is up
         raise SystemExit(f"error: --out {out_dir} holds a recording already ({out_dir / 'bag'}); choose a new "
                          f"directory (without --out each run gets its own runs/<stamp>)")

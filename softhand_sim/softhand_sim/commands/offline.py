@@ -41,11 +41,12 @@ from pathlib import Path
 import numpy as np
 
 from softhand_sim.topics import SKIN_OBJECT
-from softhand_sim.params import load_params, safe_load
+from softhand_sim.params import ParamError, load_params, safe_load
 from softhand_sim.paths import bag_params_file, bag_path
+from softhand_sim.ros.bagio import BagError
 from softhand_sim.physics.hands import HAND_CODE
 from softhand_sim.physics.rotations import quat_to_matrix
-from softhand_sim.scene import load_scene
+from softhand_sim.scene import SceneError, load_scene
 from softhand_sim.runtime import SimRuntime
 from softhand_tracking.adapter import tracker_adapter
 from softhand_tracking.loop import TrackingLoop, loop_config_from
@@ -55,12 +56,19 @@ MSGTYPE = "geometry_msgs/msg/PoseArray"
 _FRAME, _LOOP, _WORLD, _SIM_OUT, _SIM = range(5)  # tie-break order of simultaneous events
 
 
+class InputError(ValueError):
+    """A name the user gave that the run does not have (an object, a scenario)."""
+
+
 def read_frames(bag=None, synth=None, side="right"):
     """(times [s] from the first frame, joints (n, 26, 7)) of hand `side` in a bag (name in bags/ or
     directory: its /tracker/{side}/hand_joints, or an old bag's /tracker/hand_joints) or, with
     synth=<scenario name>, of tracker_bags.sample directly (no file)."""
     if synth is not None:
-        from softhand_sim.scenarios.tracker_bags import sample
+        from softhand_sim.scenarios.tracker_bags import SCENARIOS, SIZED_SCENARIOS, sample
+        if synth not in SCENARIOS and synth not in SIZED_SCENARIOS:
+            raise InputError(f"unknown scenario {synth!r} (--synth); known: "
+                             f"{', '.join([*SCENARIOS, *SIZED_SCENARIOS])}")
         stamps, joints, _ = sample(synth)
     else:
         stamps, joints = tracker_frames_ns(bag, side)
@@ -160,11 +168,15 @@ def run_pipeline(bag=None, synth=None, until=None, sim_latency=None, sim_overrid
         frames = {hands[0]: read_frames(bag, synth, side=hands[0])}
     else:
         if synth is not None:
-            raise ValueError("two hands run from a bag only (synth is one hand)")
+            raise InputError("two hands run from a bag only (synth is one hand)")
         raw = {side: tracker_frames_ns(bag, side) for side in hands}
         t0_ns = min(stamps[0] for stamps, _ in raw.values())  # the bag's one timeline
         frames = {side: ((stamps - t0_ns) * 1e-9, joints) for side, (stamps, joints) in raw.items()}
     scene = load_scene(sp["scene_file"] or None)
+    movable = [o.name for o in scene.dynamic_objects]
+    if track_object not in movable:
+        raise InputError(f"object {track_object!r} is not among the scene's movable objects "
+                         f"({', '.join(movable)})")
     runtime = SimRuntime(sp, scene=scene, asset=asset)
     world = World(load_scene(wp["scene_file"] or None), WorldConfig(
         engine_rate=wp["engine_rate"], coupling_kx=wp["coupling_kx"], coupling_ktheta=wp["coupling_ktheta"],
@@ -312,11 +324,15 @@ def main(argv=None):
     if args.hands and len(set(args.hands)) != len(args.hands):
         ap.error(f"--hands names a side twice: {args.hands}")
     t0 = time.monotonic()
-    r = run_pipeline(None if args.synth else args.bag, synth=args.bag if args.synth else None, until=args.until,
-                     sim_latency=args.latency, sim_overrides=_overrides(args.sim),
-                     world_overrides=_overrides(args.world), tracking_overrides=_overrides(args.tracking),
-                     hands=args.hands, track_object=args.object, params_file=args.params_file,
-                     realtime=args.realtime)
+    try:
+        r = run_pipeline(None if args.synth else args.bag, synth=args.bag if args.synth else None,
+                         until=args.until, sim_latency=args.latency, sim_overrides=_overrides(args.sim),
+                         world_overrides=_overrides(args.world), tracking_overrides=_overrides(args.tracking),
+                         hands=args.hands, track_object=args.object, params_file=args.params_file,
+                         realtime=args.realtime)
+    except (BagError, ParamError, SceneError, InputError) as exc:
+        # the user's input (a bag, a parameter, an object or scenario name): its own words, no trace
+        raise SystemExit(f"error: {exc}") from None
     print(" t[s]  ball_z[mm] lift  hand_z  palm_z track_z  in_palm(x,y,z)[mm]   nC  F[N]  Fn[N] other skin_min_z")
     next_print = 0.0
     for i, t in enumerate(r.t):

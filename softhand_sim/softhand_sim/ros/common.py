@@ -245,10 +245,15 @@ def split_cli(parser: argparse.ArgumentParser, args=None):
     """Parse the node's own flags, leaving `--ros-args ...` for rclpy.
 
     Returns (namespace, full argv for rclpy.init). `--help` prints and exits 0 before rclpy
-    starts; a bad flag exits 2 with argparse's message on stderr.
+    starts; a bad flag exits 2 with argparse's message on stderr, and so do ROS arguments rcl
+    refuses (a params file missing or not YAML), with rcl's message.
     """
     argv = list(sys.argv if args is None else args)
-    own = remove_ros_args(args=argv)[1:]
+    try:
+        own = remove_ros_args(args=argv)[1:]
+    except RuntimeError as exc:  # rcl's RCLInvalidROSArgsError: e.g. a params file it cannot read
+        # rcl appends where in its C sources it failed (", at /project/src/..."): not the user's concern
+        parser.exit(2, f"{parser.prog}: error: {str(exc).split(', at /')[0].strip()}\n")
     return parser.parse_args(own), argv
 
 

@@ -86,7 +86,11 @@ def serve(topics, host=DEFAULT_HOST, port=DEFAULT_PORT, ready=None, stop=None, s
     from rclpy.signals import SignalHandlerOptions
 
     context = foxglove.Context()
-    server = foxglove.start_server(name="softhand", host=host, port=port, context=context)
+    try:
+        server = foxglove.start_server(name="softhand", host=host, port=port, context=context)
+    except RuntimeError as exc:  # the SDK's FoxgloveError: the port taken, the host not this machine's
+        raise SystemExit(f"softhand view: cannot serve on ws://{host}:{port}: {exc} (another viewer or "
+                         f"`softhand demo --view` may hold it; --port 0 takes any free port)") from None
     # rclpy's own SIGINT handler shuts the context down under a running spin_once, which then
     # fails ("the given context is not valid") and the viewer exited 1 on Ctrl-C now and then; as
     # run_node does for the nodes, the caller's signal handling sets `stop` instead
