@@ -98,3 +98,16 @@ def test_a_node_names_a_params_file_rcl_cannot_read(tmp_path, capsys):
     assert err.startswith(f"world_node: error: Failed to parse ROS arguments: Couldn't parse params file: "
                           f"'--params-file {missing}'"), err
     assert "/project/src" not in err, err
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["--until", "-1"], "--until -1.0: must be > 0 [s]"),  # an IndexError at the summary before
+    (["--until", "nan"], "--until nan: must be > 0 [s]"),
+    (["--every", "0"], "--every 0.0: must be > 0 [s]"),
+    (["--latency", "-0.01"], "--latency -0.01: must be >= 0 [s]"),  # accepted silently before
+])
+def test_offline_refuses_times_out_of_range(argv, message, capsys):
+    with pytest.raises(SystemExit) as exc:
+        offline.main(["grasp_lift", *argv])
+    assert exc.value.code == 2
+    assert message in capsys.readouterr().err

@@ -323,6 +323,11 @@ def main(argv=None):
     args = ap.parse_args(argv)
     if args.hands and len(set(args.hands)) != len(args.hands):
         ap.error(f"--hands names a side twice: {args.hands}")
+    for flag, value, low in (("--until", args.until, 0.0), ("--every", args.every, 0.0)):
+        if value is not None and not value > low:
+            ap.error(f"{flag} {value}: must be > 0 [s]")
+    if args.latency is not None and not args.latency >= 0.0:
+        ap.error(f"--latency {args.latency}: must be >= 0 [s]")
     t0 = time.monotonic()
     try:
         r = run_pipeline(None if args.synth else args.bag, synth=args.bag if args.synth else None,
