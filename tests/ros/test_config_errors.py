@@ -46,6 +46,11 @@ CASES = [
     (["softhand-play", "{bag}"], "bogus_key:=1", ["bogus_key", "1"]),
     (["softhand-play", "{bag}"], "rate:=-1.0", ["rate", "-1.0"]),
     (["softhand-play", "{bag}"], "loop:=sometimes", ["loop", "sometimes"]),
+    # the players' and recorders' own flags, checked as the parameters of the same names (--repeat 0
+    # played the bag once), and an output the recorder cannot create (a traceback before)
+    (["softhand-play", "{bag}", "--repeat", "0"], "rate:=1.0", ["repeat", "0"]),
+    (["softhand-play", "{bag}", "--start", "-1"], "rate:=1.0", ["start", "-1.0"]),
+    (["softhand-record", "-o", "/proc/softhand/bag"], "flush_period:=1.0", ["/proc/softhand/bag"]),
     (["softhand-record", "-o", "{out}"], "bogus_key:=x", ["bogus_key", "x"]),
     (["softhand-record", "-o", "{out}"], "flush_period:=0.0", ["flush_period", "0.0"]),
 ]

@@ -496,9 +496,12 @@ def open_writer(path, storage: str = "mcap") -> JazzyWriter:
     plugin = {"mcap": StoragePlugin.MCAP, "sqlite3": StoragePlugin.SQLITE3}.get(storage)
     if plugin is None:
         raise BagError(f"storage must be 'mcap' or 'sqlite3', got {storage!r}")
-    p.parent.mkdir(parents=True, exist_ok=True)
-    writer = JazzyWriter(p, version=Writer.VERSION_LATEST, storage_plugin=plugin)
-    writer.open()
+    try:
+        p.parent.mkdir(parents=True, exist_ok=True)
+        writer = JazzyWriter(p, version=Writer.VERSION_LATEST, storage_plugin=plugin)
+        writer.open()
+    except OSError as exc:  # a read-only or missing place: its own words, naming the path
+        raise BagError(f"cannot create the recording {p}: {exc.strerror or exc}") from None
     return writer
 
 
