@@ -232,10 +232,6 @@ class PlayNode(Node):
         self.cfg = cfg
         if not cfg["bag"]:
             raise BagError("no bag given: pass BAG on the command line or -p bag:=DIR")
-        if cfg["rate"] <= 0:
-            raise BagError(f"rate must be > 0, got {cfg['rate']}")
-        if cfg["start"] < 0:
-            raise BagError(f"start must be >= 0 s, got {cfg['start']}")
         self.raw_pubs = None  # topic -> publisher when replaying a recording's topics raw
         self.pubs = {}        # tracker mode: topic -> publisher
         if cfg["replay_all"] or cfg["replay_topics"]:

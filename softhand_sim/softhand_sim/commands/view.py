@@ -26,7 +26,7 @@ import threading
 from softhand_sim.ros.foxglove import DEFAULT_HOST, DEFAULT_PORT  # no rclpy at import
 
 
-def _in_range(name, lo, hi, why):
+def _in_range(lo, hi, why):
     """An argparse type: an int within lo..hi, else an error naming the value and the range."""
     def parse(text):
         try:
@@ -36,7 +36,6 @@ def _in_range(name, lo, hi, why):
         if not lo <= value <= hi:
             raise argparse.ArgumentTypeError(f"{value} is outside {lo}..{hi} ({why})")
         return value
-    parse.__name__ = name  # argparse names the type in its messages
     return parse
 
 
@@ -51,8 +50,9 @@ def build_parser():
     )
     p.add_argument("--host", default=DEFAULT_HOST,
                    help=f"address to bind (default {DEFAULT_HOST}: this machine only; 0.0.0.0 exposes it to the network)")
-    p.add_argument("--port", type=_in_range("port", 0, 65535, "a TCP port"), default=DEFAULT_PORT, help=f"WebSocket port (default {DEFAULT_PORT}; 0 = any free)")
-    p.add_argument("--domain-id", type=_in_range("domain id", 0, 232, "ROS 2's domain ids"), default=None,
+    p.add_argument("--port", type=_in_range(0, 65535, "a TCP port"), default=DEFAULT_PORT,
+                   help=f"WebSocket port (default {DEFAULT_PORT}; 0 = any free)")
+    p.add_argument("--domain-id", type=_in_range(0, 232, "ROS 2's domain ids"), default=None,
                    help="ROS_DOMAIN_ID to join (default: the environment's ROS_DOMAIN_ID, else 0)")
     p.add_argument("--topics", nargs="+", default=None, metavar="TOPIC",
                    help="softhand topics to forward (default: all but the heavy /hand/{side}/skin_vertices)")
