@@ -121,6 +121,32 @@ def test_bench_profile_json_has_every_stage(capsys):
     assert "factor_cost" not in json.loads(capsys.readouterr().out)[0]  # no factor to time
 
 
+def test_bench_plot_draws_every_case(tmp_path, capsys):
+    """`softhand bench --plot FILE.png` (implies --profile): the rows carry every step's time, the
+    picture has a bar and a series per case, and it is not blank; a path that is not a PNG is
+    refused before anything runs."""
+    from PIL import Image
+
+    from softhand_sim.commands.bench_plot import plot_profile
+
+    out = tmp_path / "bench.png"
+    assert bench.main(["--json", "--steps", "6", "--mesh", "coarse", "--scenario", "free", "--scenario", "press",
+                       "--set", "factor_hold=0.5", "--plot", str(out)]) == 0
+    captured = capsys.readouterr()
+    rows = json.loads(captured.out)
+    assert f"wrote {out}" in captured.err
+    assert [len(r["step_ms"]) for r in rows] == [6, 6] and all("stages" in r for r in rows)
+    assert all(min(r["step_ms"]) > 0.0 and np.median(r["step_ms"]) == pytest.approx(r["median_ms"]) for r in rows)
+    pixels = np.asarray(Image.open(out).convert("L"), float)
+    assert pixels.shape[1] > 1000 and pixels.std() > 10.0  # drawn, not an empty canvas
+    labels = plot_profile(rows, tmp_path / "again.png")
+    assert labels == ["free coarse, factor_hold=0.5", "press coarse, factor_hold=0.5"]
+    with pytest.raises(SystemExit) as exc:
+        bench.main(["--plot", str(tmp_path / "bench.svg")])
+    assert exc.value.code == 2
+    assert "--plot " in capsys.readouterr().err
+
+
 def test_self_contact_model_follows_the_mesh_within_one_bench():
     """`softhand bench --scenario free_self` runs the coarse hand, then the fine one, with the same
     scenario object: each mesh gets the self-contact model of its own tets. (It kept the coarse

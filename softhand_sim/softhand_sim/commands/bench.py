@@ -2,7 +2,7 @@
 
     python -m softhand_sim.commands.bench [--scenario free|press|grasp] [--mesh coarse|fine|box]
                                  [--steps N] [--preconditioner factor|two_level|block_jacobi|jacobi]
-                                 [--all-preconditioners] [--hands 1|2|1,2] [--profile] [--json]
+                                 [--all-preconditioners] [--hands 1|2|1,2] [--profile] [--plot FILE.png] [--json]
                                  [--set KEY=VALUE ...]
 
 Meshes: coarse / fine = the parametric hand model (handmodel.load_or_build_hand(resolution=...));
@@ -33,6 +33,10 @@ the one-core figures are --threads 1, the default. `--threads 1,2` runs both, on
 (physics/two_level.py; its `factor` stage is the coarse level's refresh). Meant for the fine
 mesh; on the coarse one its coarse level is the hand's own mesh, a whole factor every
 two_level_refresh_steps steps.
+
+--plot FILE.png draws the cases (bench_plot.py): each mean step split into its stages with the
+median and p99 step, and every step in run order (a scene that moves and then holds shows as two
+levels). It implies --profile; with --json the rows then also carry `step_ms`, every step's time.
 
 With the factor preconditioner --profile also times a whole factorization and a CG iteration
 after the run (`factor_cost`: factor_ms, iteration_ms, their ratio `measured` and the cost model's
@@ -335,7 +339,9 @@ def parse_settings(items):
     return out
 
 
-def run(scenario, mesh, steps, preconditioner, hands=1, profile=False, threads=1, settings=None):
+def run(scenario, mesh, steps, preconditioner, hands=1, profile=False, threads=1, settings=None, series=False):
+    """One case: `steps` steps after a compiling warm-up; its row (COLUMNS and more; with profile
+    `stages` and `factor_cost`, with series every step's time `step_ms`)."""
     from softhand_sim.physics.model import build_model
     from softhand_sim.physics.solver import STAGE_FIELDS, Solver
     scenes = check_case(scenario, hands)
@@ -393,6 +399,8 @@ def run(scenario, mesh, steps, preconditioner, hands=1, profile=False, threads=1
         "compile_s": compile_s, "finite": bool(np.all(np.isfinite(state.node_x))),
         "paper_steps_per_s": PAPER_STEPS_PER_S, "settings": dict(settings or {}),
     }
+    if series:
+        row["step_ms"] = ms.tolist()
     if profile:
         row["stages"] = stage_profile(ms, stage_ms)
         if preconditioner == "factor":
@@ -499,8 +507,15 @@ def main(argv=None):
     ap.add_argument("--set", action="append", metavar="KEY=VALUE", dest="settings",
                     help="a sim_node solver parameter for every case (repeat for several), e.g. "
                          "--set factor_hold=0 (`softhand params sim_node` lists them)")
+    ap.add_argument("--plot", metavar="FILE.png",
+                    help="also draw the cases (implies --profile): each mean step split by stage with "
+                         "its median and p99, and every step in run order")
     ap.add_argument("--json", action="store_true")
     a = ap.parse_args(argv)
+    if a.plot:
+        a.profile = True
+        if not a.plot.lower().endswith(".png"):
+            ap.error(f"--plot {a.plot}: a .png file")
     if a.steps < 1:
         ap.error(f"--steps={a.steps}: must be >= 1")
     precs = list(PRECONDITIONERS) if a.all_preconditioners else (a.preconditioner or ["factor"])
@@ -522,11 +537,15 @@ def main(argv=None):
         for h in counts:  # every case checked before the first one runs (a minute each)
             for s in scenarios:
                 check_case(s, h)
-        rows = [run(s, m, a.steps, p, h, a.profile, t, settings) for h in counts
+        rows = [run(s, m, a.steps, p, h, a.profile, t, settings, series=bool(a.plot)) for h in counts
                 for m in (a.mesh or ["coarse", "fine"]) for s in scenarios for p in precs for t in threads]
     except ValueError as e:
         ap.error(str(e))
     print(json.dumps(rows, indent=1) if a.json else format_table(rows))
+    if a.plot:
+        from softhand_sim.commands.bench_plot import plot_profile
+        plot_profile(rows, a.plot)
+        print(f"wrote {a.plot}", file=sys.stderr if a.json else sys.stdout)
     return 0
 
 
