@@ -13,6 +13,8 @@ import matplotlib.pyplot as plt  # noqa: E402
 import matplotlib.ticker  # noqa: E402
 import numpy as np  # noqa: E402
 
+# the stages as --profile names them (solver.STAGE_FIELDS, then `other`); a stage added there
+# later gets a grey until it is given a colour here
 STAGE_COLORS = {"collision": "#8c564b", "self_collision": "#e377c2", "assembly": "#1f77b4",
                 "factor": "#d62728", "pcg": "#2ca02c", "advance": "#9467bd", "other": "#7f7f7f"}
 
@@ -39,9 +41,9 @@ def plot_profile(rows, path):
     y = np.arange(len(rows))[::-1]  # the first case on top
     for yi, row in zip(y, rows):
         left = 0.0
-        for name, color in STAGE_COLORS.items():
-            width = row["stages"][name]["share"] * row["mean_ms"]
-            bars.barh(yi, width, left=left, color=color, height=0.6,
+        for name, stage in row["stages"].items():
+            width = stage["share"] * row["mean_ms"]
+            bars.barh(yi, width, left=left, color=STAGE_COLORS.get(name, "#bbbbbb"), height=0.6,
                       label=name if yi == y[0] else None)
             left += width
         bars.plot([row["median_ms"]] * 2, [yi - 0.38, yi + 0.38], color="black", lw=1.5,
