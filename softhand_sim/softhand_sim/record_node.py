@@ -73,7 +73,7 @@ from softhand_sim.ros.common import LATCHED_QOS, PUB_QOS, DiagnosticsPublisher, 
 from softhand_sim.ros.msgs import diagnostic_name, pose_array_from_cdr
 from softhand_sim.topics import (HEAVY_TOPICS, LATCHED_TOPICS, POSE_ARRAY, SIDES, TOPIC_TYPES, TRACKER_TOPICS,
                                  hand_topic, tracker_topic)
-from softhand_sim.params import ParamError, check_value
+from softhand_sim.params import ParamError
 from softhand_sim.ros.params import declare_node_params
 from softhand_sim.ros.bagio import (BagError, add_topic, flush_chunk, header_stamp_ns, known_type, open_writer,
                                     qos_from_profile, type_hash)
@@ -140,8 +140,7 @@ class RecordNode(Node):
 
     def __init__(self, overrides: dict | None = None):
         super().__init__("record_node")
-        cfg = declare_node_params(self, "record_node")  # schema: softhand_sim/params.py
-        cfg.update({k: check_value("record_node", k, v) for k, v in (overrides or {}).items() if v is not None})
+        cfg = declare_node_params(self, "record_node", flags=overrides)  # schema: softhand_sim/params.py
         if cfg["stamp_source"] not in ("receive", "header"):
             raise BagError(f"stamp_source must be 'receive' or 'header', got {cfg['stamp_source']!r}")
         topics = [t for t in cfg["topics"] if t] or list(DEFAULT_TOPICS)

@@ -67,7 +67,7 @@ from rosgraph_msgs.msg import Clock
 
 from softhand_sim.ros.common import PUB_QOS, message_class, split_cli
 from softhand_sim.ros.msgs import stamp_from_ns
-from softhand_sim.params import ParamError, check_value
+from softhand_sim.params import ParamError
 from softhand_sim.ros.params import declare_node_params
 from softhand_sim.ros.bagio import (BagError, check_bag_path, header_stamp_ns, mcap_is_closed, read_recording,
                                     starts_with_header, with_header_stamp)
@@ -222,9 +222,7 @@ class PlayNode(Node):
 
     def __init__(self, overrides: dict):
         super().__init__("play_node")
-        cfg = declare_node_params(self, "play_node")  # schema: softhand_sim/params.py
-        # the command line's flags, checked as the parameters of the same names are
-        cfg.update({k: check_value("play_node", k, v) for k, v in overrides.items() if v is not None})
+        cfg = declare_node_params(self, "play_node", flags=overrides)  # schema: softhand_sim/params.py
         cfg["replay_topics"] = [t for t in cfg["replay_topics"] if t]  # [""]: ROS cannot type an empty list
         cfg["wait_for_nodes"] = [n.lstrip("/") for n in cfg["wait_for_nodes"] if n]
         if cfg["stamps"] not in ("publish", "recorded"):

@@ -28,14 +28,14 @@ def _python(code):
 def test_a_child_that_exits_while_the_bag_plays_ends_the_wait_with_its_log(tmp_path):
     procs = ProcessSet(env=None, log_dir=tmp_path)
     try:
-        play = procs.start("play", _python("import time; time.sleep(60)"))
+        procs.start("play", _python("import time; time.sleep(60)"))
         procs.start("view", _python("raise SystemExit(5)"))  # skipped: the run goes on without it
         procs.start("world", _python("import time; time.sleep(60)"))
         procs.start("record", _python("import time; time.sleep(0.5); "
                                       "raise SystemExit('softhand-record: error: output exists already')"))
         t0 = time.monotonic()
         with pytest.raises(SystemExit) as exc:
-            wait_watching(play, procs, skip=("view",), what="grasp_lift played", poll_s=0.05)
+            wait_watching(procs, "play", skip=("view",), what="grasp_lift played", poll_s=0.05)
         assert time.monotonic() - t0 < 10.0  # not the player's 60 s
         text = str(exc.value)
         assert text.startswith("error: record exited (code 1) while grasp_lift played:"), text
@@ -49,9 +49,9 @@ def test_a_child_that_exits_while_the_bag_plays_ends_the_wait_with_its_log(tmp_p
 def test_the_wait_ends_with_the_player_when_every_other_child_lives(tmp_path):
     procs = ProcessSet(env=None, log_dir=tmp_path)
     try:
-        play = procs.start("play", _python("import time; time.sleep(0.3); raise SystemExit(3)"))
+        procs.start("play", _python("import time; time.sleep(0.3); raise SystemExit(3)"))
         procs.start("sim", _python("import time; time.sleep(60)"))
-        assert wait_watching(play, procs, poll_s=0.05) == 3
+        assert wait_watching(procs, "play", poll_s=0.05) == 3
         assert procs.exited() == ["play"]
     finally:
         procs.stop_all()

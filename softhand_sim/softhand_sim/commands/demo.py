@@ -188,19 +188,18 @@ class ProcessSet:
         return "\n".join(path.read_text(errors="replace").splitlines()[-lines:]) if path.exists() else ""
 
 
-def wait_watching(proc, procs, skip=(), what="the run went on", poll_s=0.2):
-    """Wait for `proc` (one of procs) to exit; SystemExit with the log of any other child of
-    procs (but those in `skip`) that exits first. A node that dies mid-run (the recorder refusing
+def wait_watching(procs, name, skip=(), what="the run went on", poll_s=0.2):
+    """Wait for child `name` of procs to exit (its exit code); SystemExit with the log of any other
+    child (but those in `skip`) that exits first. A node that dies mid-run (the recorder refusing
     its output, a crash) ends the run with its own words at once, rather than when the player gives
     up waiting for its subscription (30 s) and blames itself."""
-    while proc.poll() is None:
-        dead = [name for name in procs.exited(skip) if procs.procs[name][0] is not proc]
+    while procs.alive(name):
+        dead = procs.exited((name, *skip))
         if dead:
-            name = dead[0]
-            raise SystemExit(f"error: {name} exited (code {procs.returncode(name)}) while {what}:\n"
-                             f"{procs.tail(name)}")
+            raise SystemExit(f"error: {dead[0]} exited (code {procs.returncode(dead[0])}) while {what}:\n"
+                             f"{procs.tail(dead[0])}")
         time.sleep(poll_s)
-    return proc.returncode
+    return procs.returncode(name)
 
 
 def run_demo(bag, out_dir, rate=1.0, params_file=None, preview=True, startup_timeout=600.0, quiet=False, view=False,
@@ -253,10 +252,9 @@ def run_demo(bag, out_dir, rate=1.0, params_file=None, preview=True, startup_tim
         procs.start("record", [console_script("softhand-record"), *ros, "-p", f"output:={out_dir / 'bag'}"])
         time.sleep(1.0)  # let the recorder discover the nodes' publishers (the tracker's is waited for below)
         say(f"  nodes up after {time.monotonic() - t0:.1f} s; playing {bag.name} at rate {rate}")
-        play = procs.start("play", [console_script("softhand-play"), str(bag), "--rate", str(rate), "--repeat", str(repeat),
-                                    "--hand", legacy_side, "--wait-for-nodes", *tracker_subscribers(sides), *ros])
-        wait_watching(play, procs, skip=("view",), what=f"{bag.name} played")
-        if play.returncode != 0:
+        procs.start("play", [console_script("softhand-play"), str(bag), "--rate", str(rate), "--repeat", str(repeat),
+                             "--hand", legacy_side, "--wait-for-nodes", *tracker_subscribers(sides), *ros])
+        if wait_watching(procs, "play", skip=("view",), what=f"{bag.name} played") != 0:
             raise SystemExit(f"error: play_node failed:\n{procs.tail('play')}")
         time.sleep(DRAIN_S)
     finally:

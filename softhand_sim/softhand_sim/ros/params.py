@@ -25,11 +25,14 @@ _ROS_OWN = {"use_sim_time", "start_type_description_service"}
 
 
 def declare_node_params(node: Node, node_name: str,
-                        live: Mapping[str, Callable[[object], None]] | None = None) -> dict:
+                        live: Mapping[str, Callable[[object], None]] | None = None,
+                        flags: Mapping[str, object] | None = None) -> dict:
     """Declare the schema of `node_name` on `node`; return validated values (raises ParamError).
 
     live: the keys this node applies while running, each with a function taking the checked new
     value (it may raise ValueError to refuse it); run-time changes of other keys are refused.
+    flags: the node's own command-line flags (key -> value, None where not given), which take the
+    place of the parameters of the same names, checked as they are.
     """
     schema = SCHEMA[node_name]
     base = defaults(node_name)
@@ -62,6 +65,7 @@ def declare_node_params(node: Node, node_name: str,
         elif schema[k].kind is float and isinstance(v, int) and not isinstance(v, bool):
             v = float(v)
         out[k] = check_value(node_name, k, v)
+    out.update({k: check_value(node_name, k, v) for k, v in (flags or {}).items() if v is not None})
     node.add_on_set_parameters_callback(_runtime_guard(node_name, dict(live or {})))
     return out
 

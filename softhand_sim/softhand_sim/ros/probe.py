@@ -17,8 +17,9 @@ def wait_for_topics(topics, timeout, procs):
             missing = [t for t in topics if node.count_publishers(t) == 0]
             if not missing:
                 return []
-            for name in procs.exited():
-                raise SystemExit(f"error: {name} node exited during start-up:\n{procs.tail(name)}")
+            dead = procs.exited()
+            if dead:
+                raise SystemExit(f"error: {dead[0]} node exited during start-up:\n{procs.tail(dead[0])}")
             rclpy.spin_once(node, timeout_sec=0.2)
         return missing
     finally:
